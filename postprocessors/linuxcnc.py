@@ -1,0 +1,155 @@
+"""LinuxCNC 2.9: 3-D G1 chords.
+
+LinuxCNC's NURBS (G5.2/G5.3) work in the XY plane only and silently ignore Z, so the
+spherical path is written as 3-D chords whose radial deviation, sagitta included,
+stays within the stated tolerance; ``G64 P<tol> Q0`` keeps blending within the same
+tolerance and switches the naive-CAM merger off.  ``G4 P<s>`` dwells seconds.
+Comments are ``( ... )``; user text never starts a special comment (MSG, DEBUG, LOG...).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+from sdit_path.nc.program import Comment, Dwell, LinearMove, PolylineMove, Program, SplineMove
+from sdit_path.nc.text import neutralise
+from sdit_path.nc.words import fixed, frame, trimmed, words
+
+_SPECIAL = re.compile(r"^\s*(msg|debug|print|log|probe|abort)", re.IGNORECASE)
+_OFFSETS = {"G54", "G55", "G56", "G57", "G58", "G59"}
+
+
+def _comment(text: str) -> str:
+    text = neutralise(text, forbidden="()")
+    if _SPECIAL.match(text):
+        text = "- " + text
+    return text
+
+
+class LinuxCNC:
+    name = "linuxcnc"
+    title = "LinuxCNC 2.9"
+    extension = ".ngc"
+    path_form = "chords"
+
+    def render(self, program: Program) -> str:
+        d = program.decimals
+
+        def xyz(p) -> str:
+            return f"X{fixed(p[0], d)} Y{fixed(p[1], d)} Z{fixed(p[2], d)}"
+
+        body: list[str] = []
+        for item in program.items:
+            if isinstance(item, Comment):
+                body.append(f"({_comment(item.text)})")
+            elif isinstance(item, LinearMove):
+                body.append(f"G1 {xyz(item.point_mm)} F{trimmed(item.feed_mm_per_min, 3)}")
+            elif isinstance(item, Dwell):
+                body.append(f"(dwell at node {_comment(item.node_id)})")
+                body.append(f"G4 P{trimmed(item.seconds, 3)}")
+            elif isinstance(item, PolylineMove):
+                labels = dict(item.labels)
+                for j, p in enumerate(item.points_mm):
+                    if j in labels:
+                        body.append(f"({_comment(labels[j])})")
+                    body.append(f"G1 {xyz(p)}" if j == 0 else xyz(p))
+            elif isinstance(item, SplineMove):
+                raise TypeError("LinuxCNC programs carry 3-D chords, not splines")
+        tol = program.tolerance_mm
+        offset = program.work_offset if program.work_offset in _OFFSETS else "G54"
+        preamble = ["G21 G17 G90 G94 G40", offset, f"G64 P{trimmed(tol, 6)} Q0", "M5"]
+        header = [_comment(line) for line in program.header]
+        if program.work_offset not in _OFFSETS:
+            header.append(f"{_comment(program.work_offset)} has no LinuxCNC equivalent: "
+                          f"run with a zero G54 offset for machine coordinates")
+        return frame("linuxcnc/program.ngc.j2", name=program.name, header=header,
+                     preamble=preamble, body=body)
+
+    def lint(self, text: str, travel_mm: dict[str, tuple[float, float]]) -> list[str]:
+        problems: list[str] = []
+        lines = text.split("\n")
+        if lines and lines[-1] == "":
+            lines = lines[:-1]
+        last_code = ""
+        seen_g21 = seen_g94 = False
+        for lineno, raw in enumerate(lines, start=1):
+            if any(ord(ch) < 32 or ord(ch) > 126 for ch in raw):
+                problems.append(f"line {lineno}: control or non-ASCII character")
+            stripped = raw.strip()
+            if stripped == "%":
+                if lineno not in (1, len(lines)):
+                    problems.append(f"line {lineno}: '%' only on the first and last line")
+                continue
+            code, depth, comments = [], 0, []
+            for ch in raw:
+                if ch == "(":
+                    if depth:
+                        problems.append(f"line {lineno}: nested comment")
+                    depth += 1
+                    comments.append("")
+                elif ch == ")":
+                    if not depth:
+                        problems.append(f"line {lineno}: ')' without '('")
+                    depth = max(0, depth - 1)
+                elif ch == ";" and not depth:
+                    break
+                elif depth:
+                    comments[-1] += ch
+                else:
+                    code.append(ch)
+            if depth:
+                problems.append(f"line {lineno}: unclosed comment")
+            for c in comments:
+                if _SPECIAL.match(c) and not c.lstrip().startswith("- "):
+                    problems.append(f"line {lineno}: special comment ({c.split(',')[0]}...) "
+                                    f"would be executed")
+            code_s = "".join(code).strip().upper()
+            if not code_s:
+                continue
+            last_code = code_s
+            ws, bad = words(code_s)
+            for tok in bad:
+                problems.append(f"line {lineno}: cannot read word {tok!r}")
+            values = {}
+            gcodes = []
+            for a, eq, v in ws:
+                if eq:
+                    problems.append(f"line {lineno}: '{a}=' is not LinuxCNC syntax")
+                if not v:
+                    problems.append(f"line {lineno}: address {a} without a value")
+                    continue
+                number = float(v)
+                if not math.isfinite(number):
+                    problems.append(f"line {lineno}: {a} is not finite")
+                if a == "G":
+                    gcodes.append(v)
+                else:
+                    values[a] = number
+            gnums = [float(g) for g in gcodes]
+            if 21.0 in gnums:
+                seen_g21 = True
+            if 94.0 in gnums:
+                seen_g94 = True
+            if 20.0 in gnums:
+                problems.append(f"line {lineno}: G20 (inch) found; programs are metric (G21)")
+            if any(g in (5.1, 5.2, 5.3) for g in gnums):
+                problems.append(f"line {lineno}: G5.x NURBS ignore Z in LinuxCNC; use 3-D chords")
+            if 4.0 in gnums:
+                if not (len(ws) == 2 and ws[1][0] == "P" and values.get("P", 0) > 0):
+                    problems.append(f"line {lineno}: dwell must be 'G4 P<seconds>' alone in its "
+                                    f"block, got {code_s!r}")
+            if 64.0 in gnums and not values.get("P", 0) > 0:
+                problems.append(f"line {lineno}: G64 needs a positive P tolerance")
+            for axis, (lo, hi) in travel_mm.items():
+                if axis in values and not lo <= values[axis] <= hi:
+                    problems.append(f"line {lineno}: {axis}{values[axis]:g} outside the travel "
+                                    f"[{lo:g}, {hi:g}] mm")
+        if not seen_g21:
+            problems.append("preamble: G21 (mm) missing")
+        if not seen_g94:
+            problems.append("preamble: G94 (feed per minute) missing")
+        if last_code not in ("M2", "M30", "M02"):
+            problems.append(f"end: the last block must be M2 or M30, got {last_code!r}")
+        return problems
+

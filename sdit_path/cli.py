@@ -1,0 +1,76 @@
+"""Command line: ``sdit-path plan [CONFIG] --out DIR``.
+
+User mistakes end with one line on stderr and a non-zero exit code (see
+:mod:`sdit_path.errors`); progress is shown only here, never in the library.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import click
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from . import __version__
+from .errors import SditError
+
+
+def _fail(exc: SditError) -> None:
+    click.echo(f"sdit-path: error: {exc}", err=True)
+    sys.exit(exc.exit_code)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="sdit-path")
+def main() -> None:
+    """Plan spatial double-ball-bar identification tests and write their NC programs."""
+
+
+@main.command("plan")
+@click.argument("config", required=False, type=click.Path(dir_okay=False))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Output directory: DIR/<controller>/ programs and DIR/plan.json.")
+@click.option("--force", is_flag=True, help="Replace the content of a non-empty DIR.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress and no summary.")
+def plan_command(config: str | None, out_dir: str, force: bool, quiet: bool) -> None:
+    """Plan CONFIG (default: the bundled 3-axis sample) and write one program per layer
+    and controller, plus plan.json."""
+    from .config import load_config
+    from .output import write_tree
+    from .pipeline import plan, step_count
+    from .report.manifest import manifest_text
+
+    console = Console(stderr=True, quiet=quiet)
+    try:
+        cfg = load_config(config)
+        with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
+                      console=console, transient=True, disable=quiet) as bar:
+            task = bar.add_task("planning", total=step_count(cfg))
+            result = plan(cfg, on_step=lambda msg: bar.update(task, advance=1, description=msg))
+        files = {p.file: p.text for p in result.programs}
+        files["plan.json"] = manifest_text(result)
+        out = write_tree(out_dir, files, force=force)
+    except SditError as exc:
+        _fail(exc)
+        return
+    if quiet:
+        return
+    table = Table(title=f"{cfg.machine.name}: sphere R {result.hemisphere.radius_mm:g} mm, "
+                        f"F{cfg.test.feed_mm_per_min:g}", title_justify="left")
+    table.add_column("program")
+    table.add_column("layer")
+    table.add_column("segments", justify="right")
+    table.add_column("dwells", justify="right")
+    table.add_column("blocks", justify="right")
+    table.add_column("max radial dev. [um]", justify="right")
+    for p in result.programs:
+        path = next(x for x in result.paths if x.layer == p.layer)
+        blocks = sum(1 for line in p.text.splitlines()
+                     if line.strip() and not line.lstrip().startswith((";", "(", "%")))
+        table.add_row(p.file, p.layer, str(len(set(path.segment_order()))),
+                      str(len(path.dwells)), str(blocks),
+                      f"{p.built.max_deviation_mm * 1e3:.4f}")
+    Console().print(table)
+    Console().print(f"wrote {len(files)} files to {out}")

@@ -1,0 +1,79 @@
+"""Controller-neutral NC programs: typed items, no text.
+
+A post-processor is a pure function from a :class:`Program` to text.  Geometry that a
+controller cannot run natively (LinuxCNC has no 3-D spline) is converted here, before
+any post-processor sees it, so every post only formats.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry.nurbs import BSplineCurve
+
+
+@dataclass(frozen=True, slots=True)
+class Comment:
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class LinearMove:
+    """Straight feed move.  ``point_mm : (3,) float``."""
+
+    point_mm: np.ndarray
+    feed_mm_per_min: float
+
+
+@dataclass(frozen=True, slots=True)
+class SplineMove:
+    """One clamped B-spline from the current position (its first control point).
+
+    ``labels`` marks where a named piece starts: ``(control point index, label)``; the
+    index is the first control point whose Greville abscissa lies in the piece.
+    """
+
+    curve: BSplineCurve
+    feed_mm_per_min: float
+    knot_interval: float
+    labels: tuple[tuple[int, str], ...]
+
+
+@dataclass(frozen=True, slots=True)
+class PolylineMove:
+    """3-D chords.  ``points_mm : (k, 3) float`` excludes the current position."""
+
+    points_mm: np.ndarray
+    feed_mm_per_min: float
+    labels: tuple[tuple[int, str], ...]
+
+
+@dataclass(frozen=True, slots=True)
+class Dwell:
+    seconds: float
+    node_id: str
+
+
+Item = Comment | LinearMove | SplineMove | PolylineMove | Dwell
+
+
+@dataclass(frozen=True, slots=True)
+class Program:
+    """One layer program for one controller.
+
+    ``header`` lines are free text (sanitised by the post-processor);
+    ``work_offset`` is the frame the coordinates are written in; ``tolerance_mm`` the
+    radial tolerance the path representation was made to (controllers that blend
+    corners are told to stay within it).
+    """
+
+    name: str
+    controller: str
+    layer: str
+    header: tuple[str, ...]
+    work_offset: str
+    decimals: int
+    tolerance_mm: float
+    items: tuple[Item, ...]

@@ -1,0 +1,1 @@
+"""Reports: the plan manifest and human-readable summaries."""

@@ -1,0 +1,114 @@
+"""``plan.json``: what was planned and written, for people and for later stages."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from pathlib import PurePath
+
+from .. import __version__
+from ..pipeline import PlanResult
+
+FORMAT = "sdit-path/plan"
+FORMAT_VERSION = 1
+
+
+def _mm(v) -> list[float]:
+    return [round(float(x), 6) + 0.0 for x in v]
+
+
+def _deg(rad: float) -> float:
+    return round(math.degrees(rad), 9) + 0.0
+
+
+def manifest(result: PlanResult) -> dict:
+    cfg, hemi = result.config, result.hemisphere
+    controllers = cfg.post.controllers
+    dev: dict[str, dict[str, float]] = {}
+    for prog in result.programs:
+        for piece, d in prog.built.piece_deviation_mm.items():
+            slot = dev.setdefault(piece, {})
+            slot[prog.controller] = max(slot.get(prog.controller, 0.0), d)
+    lengths, kinds = {}, {}
+    for path in result.paths:
+        for run in path.runs:
+            for p in run.pieces:
+                lengths[p.id] = p.length_mm
+                kinds[p.id] = p.kind
+
+    def deviation_um(piece: str) -> dict[str, float]:
+        return {c: round(dev[piece][c] * 1e3, 6) for c in controllers if c in dev.get(piece, {})}
+
+    segments = []
+    for layer in hemi.layers:
+        for s in layer.segments:
+            segments.append({
+                "id": s.id, "layer": s.layer, "sector": s.sector, "subsegment": s.subsegment,
+                "azimuth_deg": [_deg(s.azimuth_start_rad), _deg(s.azimuth_end_rad)],
+                "elevation_deg": [_deg(s.lower_elevation_rad), _deg(s.upper_elevation_rad)],
+                "length_mm": round(lengths[s.id], 6),
+                "feed_mm_per_min": cfg.test.feed_mm_per_min,
+                "max_radial_deviation_um": deviation_um(s.id),
+            })
+    transits = [{"id": pid, "length_mm": round(lengths[pid], 6),
+                 "feed_mm_per_min": cfg.test.feed_mm_per_min,
+                 "max_radial_deviation_um": deviation_um(pid)}
+                for pid in sorted(k for k, v in kinds.items() if v == "transit")]
+    programs = []
+    for prog in result.programs:
+        path = next(p for p in result.paths if p.layer == prog.layer)
+        text = prog.text
+        programs.append({
+            "file": prog.file, "controller": prog.controller, "layer": prog.layer,
+            "name": prog.built.program.name,
+            "frame": {"coordinates": "program (table) frame", "work_offset": cfg.post.work_offset,
+                      "units": "mm"},
+            "start_node": path.start_node,
+            "segment_order": list(path.segment_order()),
+            "dwell_nodes": [d.node_id for d in path.dwells],
+            "blocks": sum(1 for line in text.splitlines()
+                          if line.strip() and not line.lstrip().startswith((";", "(", "%"))),
+            "path_length_mm": round(sum(r.length_mm for r in path.runs), 6),
+            "max_radial_deviation_um": round(prog.built.max_deviation_mm * 1e3, 6),
+            "sha256": hashlib.sha256(text.encode("ascii")).hexdigest(),
+        })
+    limits = {"sinumerik840d": cfg.post.spline_tolerance_um, "linuxcnc": cfg.post.chord_tolerance_um}
+    summary = {c: {"max_radial_deviation_um": round(max(
+        (p.built.max_deviation_mm for p in result.programs if p.controller == c)) * 1e3, 6)}
+        for c in controllers}
+    for c in controllers:
+        if c in limits:
+            summary[c]["tolerance_um"] = limits[c]
+    return {
+        "format": FORMAT, "format_version": FORMAT_VERSION,
+        "generator": f"sdit-path {__version__}",
+        "config": {"file": PurePath(cfg.source).name,
+                   "sha256": hashlib.sha256(cfg.text.encode("utf-8")).hexdigest()},
+        "machine": cfg.machine.name,
+        "frame": {"coordinates": "program (table) frame", "work_offset": cfg.post.work_offset,
+                  "units": "mm", "azimuth": "degrees from +X, counter-clockwise seen from +Z"},
+        "sphere": {"centre_mm": _mm(hemi.centre_mm), "radius_mm": hemi.radius_mm},
+        "test": {"feed_mm_per_min": cfg.test.feed_mm_per_min, "dwell_s": cfg.test.dwell_s,
+                 "passes": list(cfg.test.passes), "transit": cfg.test.transit,
+                 "projection": cfg.test.projection,
+                 "curve": {"amplitude": cfg.test.curve.amplitude,
+                           "waves_per_sector": cfg.test.curve.waves_per_sector,
+                           "cap_elevation_deg": cfg.test.curve.cap_elevation_deg}},
+        "tracks": [{"name": t.name, "elevation_deg": _deg(t.elevation_rad)} for t in hemi.tracks],
+        "nodes": [{"id": n.id, "track": n.track, "azimuth_deg": _deg(n.azimuth_rad),
+                   "elevation_deg": _deg(n.elevation_rad), "position_mm": _mm(n.position_mm),
+                   "dwell_s": cfg.test.dwell_s} for n in hemi.nodes],
+        "layers": [{"name": la.name, "lower_track": la.lower_track, "upper_track": la.upper_track,
+                    "elevation_deg": [_deg(la.lower_elevation_rad), _deg(la.upper_elevation_rad)],
+                    "is_cap": la.is_cap, "segments": [s.id for s in la.segments]}
+                   for la in hemi.layers],
+        "segments": segments,
+        "transits": transits,
+        "programs": programs,
+        "summary": summary,
+    }
+
+
+def manifest_text(result: PlanResult) -> str:
+    return json.dumps(manifest(result), indent=2) + "\n"
