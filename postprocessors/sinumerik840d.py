@@ -19,6 +19,8 @@ from sdit_path.nc.text import neutralise
 from sdit_path.nc.words import fixed, frame, trimmed, words
 
 MAX_BLOCK_CHARS = 512
+_KEYWORDS = {"BSPLINE", "ASPLINE", "CSPLINE", "CIP", "CT", "POLY", "TRAORI", "TRAFOOF",
+             "ORIWKS", "ORIAXES", "ORIMKS"}
 _MOTION = {"G0", "G00", "G1", "G01", "G2", "G02", "G3", "G03", "CIP", "CT", "ASPLINE",
            "CSPLINE", "POLY", "BSPLINE"}
 
@@ -112,6 +114,7 @@ class Sinumerik840D:
                 continue
             last_code = code
             ws, bad = words(code)
+            bad += [a for a, _, v in ws if not v and a not in _KEYWORDS]
             for tok in bad:
                 problems.append(f"line {lineno}: cannot read word {tok!r}")
             addresses = [f"{a}{v}" if a == "G" else a for a, _, v in ws]

@@ -1,0 +1,65 @@
+from __future__ import annotations
+
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+from sdit_path.config import load_config, parse_config, sample_path
+from sdit_path.pipeline import plan
+
+DATA = Path(__file__).parent / "data"
+GOLDEN = Path(__file__).parent / "golden"
+
+
+def pytest_addoption(parser):
+    parser.addoption("--regen-golden", action="store_true",
+                     help="rewrite tests/golden/ from the current code (review the diff!)")
+
+
+@pytest.fixture(scope="session")
+def regen_golden(request) -> bool:
+    return request.config.getoption("--regen-golden")
+
+
+@pytest.fixture(scope="session")
+def default_config():
+    return load_config()
+
+
+@pytest.fixture(scope="session")
+def default_plan(default_config):
+    return plan(default_config)
+
+
+@pytest.fixture(scope="session")
+def default_text() -> str:
+    return sample_path("vmc_3axis.toml").read_text()
+
+
+def edit(text: str, key: str, value: str, section: str | None = None) -> str:
+    """Replace ``key = ...`` (in ``[section]`` when given) with ``key = value``."""
+    if section is None:
+        new, n = re.subn(rf"(?m)^{re.escape(key)}\s*=.*$", f"{key} = {value}", text, count=1)
+    else:
+        start = text.index(f"[{section}]\n")
+        end = text.find("\n[", start + 1)
+        end = len(text) if end < 0 else end
+        block, n = re.subn(rf"(?m)^{re.escape(key)}\s*=.*$", f"{key} = {value}",
+                           text[start:end], count=1)
+        new = text[:start] + block + text[end:]
+    assert n == 1, f"{key} not found"
+    return new
+
+
+@pytest.fixture
+def config_with(default_text):
+    def make(key: str, value: str, section: str | None = None):
+        return parse_config(edit(default_text, key, value, section), "test.toml")
+    return make
+
+
+def have_linuxcnc() -> bool:
+    return Path("/usr/lib/python3/dist-packages").glob("gcode*.so") is not None and any(
+        Path("/usr/lib/python3/dist-packages").glob("gcode*.so")) and shutil.which("rs274") is not None

@@ -1,0 +1,84 @@
+"""The LinuxCNC interpreter (Debian's ``linuxcnc-uspace``) as an independent oracle.
+
+Its Python module ``gcode`` parses a program exactly as LinuxCNC does and reports
+every canonical move through callbacks, in inches, as doubles.  It rewrites the
+parameter file it is given, so it gets a fresh temporary one.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from dataclasses import dataclass, field
+
+DIST = "/usr/lib/python3/dist-packages"
+
+
+def load_gcode():
+    if DIST not in sys.path:
+        sys.path.append(DIST)
+    import gcode  # noqa: PLC0415
+
+    return gcode
+
+
+@dataclass
+class Recorder:
+    parameter_file: str
+    feeds: list = field(default_factory=list)
+    traverses: list = field(default_factory=list)
+    dwells: list = field(default_factory=list)
+    arcs: list = field(default_factory=list)
+    line: int = 0
+
+    def __getattr__(self, name):  # every other canonical call is accepted and ignored
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return lambda *a, **k: None
+
+    def next_line(self, state):
+        self.line = state.sequence_number
+
+    def straight_feed(self, *a):
+        self.feeds.append((self.line, a[0] * 25.4, a[1] * 25.4, a[2] * 25.4))
+
+    def straight_traverse(self, *a):
+        self.traverses.append((self.line, a[0] * 25.4, a[1] * 25.4, a[2] * 25.4))
+
+    def arc_feed(self, *a):
+        self.arcs.append((self.line,) + a)
+
+    def dwell(self, seconds):
+        self.dwells.append((self.line, seconds))
+
+    def get_external_length_units(self):
+        return 1.0 / 25.4
+
+    def get_external_angular_units(self):
+        return 1.0
+
+    def get_axis_mask(self):
+        return 7
+
+    def get_block_delete(self):
+        return 0
+
+    def get_tool(self, idx):
+        return (-1, 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0., 0)
+
+
+def interpret(path: str) -> tuple[int, str, Recorder]:
+    """Run the interpreter on ``path``; return (result code, message, recorder)."""
+    gcode = load_gcode()
+    with tempfile.TemporaryDirectory() as tmp:
+        var = os.path.join(tmp, "sdit.var")
+        open(var, "w").close()
+        rec = Recorder(var)
+        result, _ = gcode.parse(path, rec, "", "")
+        message = gcode.strerror(result) if result > gcode.MIN_ERROR else ""
+    return result, message, rec
+
+
+def ok(result: int) -> bool:
+    return result <= load_gcode().MIN_ERROR
