@@ -46,7 +46,8 @@ def plan_command(config: str | None, out_dir: str, force: bool, quiet: bool) -> 
     try:
         cfg = load_config(config)
         with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
-                      console=console, transient=True, disable=quiet) as bar:
+                      console=console, transient=True,
+                      disable=quiet or not console.is_terminal) as bar:
             task = bar.add_task("planning", total=step_count(cfg))
             result = plan(cfg, on_step=lambda msg: bar.update(task, advance=1, description=msg))
         files = {p.file: p.text for p in result.programs}

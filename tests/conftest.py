@@ -41,12 +41,13 @@ def default_text() -> str:
 def edit(text: str, key: str, value: str, section: str | None = None) -> str:
     """Replace ``key = ...`` (in ``[section]`` when given) with ``key = value``."""
     if section is None:
-        new, n = re.subn(rf"(?m)^{re.escape(key)}\s*=.*$", f"{key} = {value}", text, count=1)
+        new, n = re.subn(rf"(?m)^{re.escape(key)}\s*=.*$", lambda _: f"{key} = {value}", text,
+                         count=1)
     else:
         start = text.index(f"[{section}]\n")
         end = text.find("\n[", start + 1)
         end = len(text) if end < 0 else end
-        block, n = re.subn(rf"(?m)^{re.escape(key)}\s*=.*$", f"{key} = {value}",
+        block, n = re.subn(rf"(?m)^{re.escape(key)}\s*=.*$", lambda _: f"{key} = {value}",
                            text[start:end], count=1)
         new = text[:start] + block + text[end:]
     assert n == 1, f"{key} not found"

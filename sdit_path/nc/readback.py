@@ -9,6 +9,7 @@ block, so the round trip emit -> read -> evaluate measures what the machine runs
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,3 +82,20 @@ def read_sinumerik(text: str) -> ReadProgram:
             points.append(new)
     close()
     return ReadProgram(tuple(splines), tuple(dwells), np.array(points))
+
+
+def read_polyline(text: str) -> np.ndarray:
+    """Every programmed ``X Y Z`` end point ``(k, 3)`` of a G-code program with
+    ``( )`` or ``;`` comments and modal coordinates (LinuxCNC, Fanuc style)."""
+    pos = [np.nan, np.nan, np.nan]
+    points = []
+    for raw in text.splitlines():
+        code = re.sub(r"\([^)]*\)", " ", raw).split(";", 1)[0].strip()
+        if not code or code == "%":
+            continue
+        ws, _ = words(code.upper())
+        vals = {a: float(v) for a, _, v in ws if v and a in "XYZ"}
+        if vals:
+            pos = [vals.get(k, p) for k, p in zip("XYZ", pos)]
+            points.append(pos)
+    return np.array(points)

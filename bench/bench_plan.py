@@ -1,0 +1,81 @@
+"""Whole-hemisphere plan and post for a config (default: the bundled sample).
+
+Prints, measured in this one run:
+- wall time of partition + curve fitting, and of posting (per controller);
+- block counts per program;
+- the largest radial deviation from the sphere per controller;
+- the ratio of NC blocks the BSPLINE program needs to a G1 polyline at the *same*
+  radial tolerance (the 840D spline tolerance), on the same paths.
+
+    python bench/bench_plan.py [CONFIG]
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from sdit_path import __version__
+from sdit_path.config import load_config
+from sdit_path.geometry.hemisphere import partition
+from sdit_path.geometry.paths import PathBuilder, check_travel
+from sdit_path.nc.chords import chords_for_range
+from sdit_path.pipeline import post_layer
+
+
+def blocks(text: str) -> int:
+    return sum(1 for line in text.splitlines()
+               if line.strip() and not line.lstrip().startswith((";", "(", "%")))
+
+
+def main(argv: list[str]) -> None:
+    cfg = load_config(argv[1] if len(argv) > 1 else None)
+    t0 = time.perf_counter()
+    hemi = partition(cfg)
+    builder = PathBuilder(cfg, hemi)
+    paths = []
+    for layer in hemi.layers:
+        path = builder.layer_path(layer)
+        check_travel(path, cfg)
+        paths.append(path)
+    t_plan = time.perf_counter() - t0
+    t_post, progs = {}, []
+    for controller in cfg.post.controllers:
+        t1 = time.perf_counter()
+        progs += [post_layer(p, cfg, hemi, controller) for p in paths]
+        t_post[controller] = time.perf_counter() - t1
+    total = time.perf_counter() - t0
+
+    print(f"sdit-path {__version__} bench_plan: {cfg.source}, R {hemi.radius_mm:g} mm, "
+          f"{hemi.segment_count} segments")
+    print(f"plan (partition + fit)        {t_plan:8.3f} s")
+    for c, t in t_post.items():
+        print(f"post {c:<24} {t:8.3f} s")
+    print(f"total                         {total:8.3f} s")
+    print()
+    print(f"{'program':<28}{'blocks':>8}{'max radial dev [um]':>22}")
+    for p in progs:
+        print(f"{p.file:<28}{blocks(p.text):>8}{p.built.max_deviation_mm * 1e3:>22.5f}")
+    for c in cfg.post.controllers:
+        worst = max(p.built.max_deviation_mm for p in progs if p.controller == c)
+        print(f"max radial deviation {c}: {worst * 1e3:.5f} um")
+
+    # BSPLINE vs G1 polyline at equal radial tolerance, same paths, motion blocks only
+    tol = cfg.post.spline_tolerance_um * 1e-3
+    spline_blocks = sum(len(r.curve.control_points_mm) - 1 for p in paths for r in p.runs)
+    chord_blocks = 0
+    for p in paths:
+        for r in p.runs:
+            for piece in r.pieces:
+                verts, _ = chords_for_range(r.curve, piece.u_start, piece.u_end, hemi.centre_mm,
+                                            hemi.radius_mm, tol, cfg.post.decimals, piece.id)
+                chord_blocks += len(verts)
+    print()
+    print(f"motion blocks at {tol * 1e3:g} um radial tolerance, whole hemisphere:")
+    print(f"  BSPLINE (SD={cfg.post.spline_degree}) {spline_blocks:>10}")
+    print(f"  G1 polyline        {chord_blocks:>10}")
+    print(f"  ratio BSPLINE / G1 {spline_blocks / chord_blocks:>10.4f}")
+
+
+if __name__ == "__main__":
+    main(sys.argv)
