@@ -30,6 +30,7 @@ def _comment(text: str) -> str:
 class LinuxCNC:
     name = "linuxcnc"
     title = "LinuxCNC 2.9"
+    short = "LinuxCNC"
     extension = ".ngc"
     path_form = "chords"
 

@@ -28,6 +28,7 @@ _MOTION = {"G0", "G00", "G1", "G01", "G2", "G02", "G3", "G03", "CIP", "CT", "ASP
 class Sinumerik840D:
     name = "sinumerik840d"
     title = "SINUMERIK 840D sl"
+    short = "840D"
     extension = ".MPF"
     path_form = "spline"
 

@@ -38,6 +38,7 @@ def plan_command(config: str | None, out_dir: str, force: bool, quiet: bool) -> 
     """Plan CONFIG (default: the bundled 3-axis sample) and write one program per layer
     and controller, plus plan.json."""
     from .config import load_config
+    from .nc.registry import get_postprocessor
     from .output import write_tree
     from .pipeline import plan, step_count
     from .report.manifest import manifest_text
@@ -58,20 +59,27 @@ def plan_command(config: str | None, out_dir: str, force: bool, quiet: bool) -> 
         return
     if quiet:
         return
-    table = Table(title=f"{cfg.machine.name}: sphere R {result.hemisphere.radius_mm:g} mm, "
-                        f"F{cfg.test.feed_mm_per_min:g}", title_justify="left")
-    table.add_column("program")
-    table.add_column("layer")
-    table.add_column("segments", justify="right")
-    table.add_column("dwells", justify="right")
-    table.add_column("blocks", justify="right")
-    table.add_column("max radial dev. [um]", justify="right")
-    for p in result.programs:
-        path = next(x for x in result.paths if x.layer == p.layer)
-        blocks = sum(1 for line in p.text.splitlines()
-                     if line.strip() and not line.lstrip().startswith((";", "(", "%")))
-        table.add_row(p.file, p.layer, str(len(set(path.segment_order()))),
-                      str(len(path.dwells)), str(blocks),
-                      f"{p.built.max_deviation_mm * 1e3:.4f}")
-    Console().print(table)
-    Console().print(f"wrote {len(files)} files to {out}")
+    table = Table(title=f"{cfg.machine.name}: R {result.hemisphere.radius_mm:g} mm, "
+                        f"F{cfg.test.feed_mm_per_min:g}, dwell {cfg.test.dwell_s:g} s",
+                  title_justify="left")
+    for col in ("layer", "segments", "dwells"):
+        table.add_column(col, justify="right" if col != "layer" else "left")
+    for c in cfg.post.controllers:
+        short = get_postprocessor(c).short
+        table.add_column(f"{short} blocks", justify="right")
+        table.add_column(f"{short} max dev (um)", justify="right")
+    for path in result.paths:
+        row = [path.layer, str(len(set(path.segment_order()))), str(len(path.dwells))]
+        for c in cfg.post.controllers:
+            p = next(x for x in result.programs if x.layer == path.layer and x.controller == c)
+            row += [str(_blocks(p.text)), f"{p.built.max_deviation_mm * 1e3:.4f}"]
+        table.add_row(*row)
+    out_console = Console()
+    out_console.print(table)
+    out_console.print(f"wrote {len(files)} files to {out}/ (programs under "
+                      f"{', '.join(c + '/' for c in cfg.post.controllers)}, manifest plan.json)")
+
+
+def _blocks(text: str) -> int:
+    return sum(1 for line in text.splitlines()
+               if line.strip() and not line.lstrip().startswith((";", "(", "%")))

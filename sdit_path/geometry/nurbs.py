@@ -70,6 +70,28 @@ class BSplineCurve:
                       extrapolate=False)(u)
         return hom[:, :3] / hom[:, 3:4]
 
+    def to_geomdl(self):
+        """A :class:`geomdl.NURBS.Curve` for exchange (geomdl rescales knots to [0, 1])."""
+        from geomdl import NURBS
+
+        curve = NURBS.Curve()
+        curve.degree = self.degree
+        w = np.ones(len(self.control_points_mm)) if self.weights is None else self.weights
+        curve.ctrlptsw = [[*(p * wi).tolist(), float(wi)] for p, wi in zip(self.control_points_mm, w)]
+        a, b = self.domain
+        curve.knotvector = ((self.knots - a) / (b - a)).tolist()
+        return curve
+
+    @classmethod
+    def from_geomdl(cls, curve) -> "BSplineCurve":
+        """From a geomdl B-spline or NURBS curve (its [0, 1] knot vector is kept)."""
+        pw = np.array(curve.ctrlptsw if hasattr(curve, "ctrlptsw") else
+                      [[*p, 1.0] for p in curve.ctrlpts], dtype=float)
+        w = pw[:, -1]
+        rational = not np.allclose(w, 1.0)
+        return cls(curve.degree, np.array(curve.knotvector, dtype=float), pw[:, :-1] / w[:, None],
+                   w if rational else None)
+
     def reversed(self) -> "BSplineCurve":
         """The same curve traversed backwards, on the mirrored knot vector."""
         a, b = self.domain

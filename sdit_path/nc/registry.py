@@ -23,6 +23,7 @@ class PostProcessor(Protocol):
 
     name: str
     title: str
+    short: str  # a few characters for table headers
     extension: str
     path_form: str  # "spline" (native B-spline) or "chords" (3-D G1 chords)
 

@@ -2,7 +2,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from geomdl import NURBS
 
 from sdit_path.errors import PlanError
 from sdit_path.geometry.curves import MeridianCurve
@@ -10,13 +9,8 @@ from sdit_path.geometry.nurbs import BSplineCurve, fit_run, max_radial_deviation
 
 
 def _geomdl_eval(curve: BSplineCurve, u: np.ndarray) -> np.ndarray:
-    c = NURBS.Curve()
-    c.degree = curve.degree
-    w = np.ones(len(curve.control_points_mm)) if curve.weights is None else curve.weights
-    c.ctrlptsw = [list(p * wi) + [wi] for p, wi in zip(curve.control_points_mm, w)]
     a, b = curve.domain
-    c.knotvector = list((curve.knots - a) / (b - a))  # geomdl works on [0, 1]
-    return np.array(c.evaluate_list(list((u - a) / (b - a))))
+    return np.array(curve.to_geomdl().evaluate_list(list((u - a) / (b - a))))
 
 
 @pytest.mark.parametrize("rational", [False, True])
@@ -68,3 +62,11 @@ def test_fit_refuses_decimals_too_coarse_for_the_tolerance():
     with pytest.raises(PlanError, match="post.decimals = 4"):
         fit_run([arc], c, 100.0, arc(np.array([0.0]))[0], arc(np.array([1.0]))[0],
                 tolerance_mm=1e-5, decimals=4)
+
+
+def test_geomdl_exchange_round_trip():
+    rng = np.random.default_rng(11)
+    curve = BSplineCurve(2, [0, 0, 0, 0.5, 1, 1, 1], rng.normal(size=(4, 3)), [1, 0.8, 1.3, 1])
+    back = BSplineCurve.from_geomdl(curve.to_geomdl())
+    u = np.linspace(0, 1, 11)
+    assert np.abs(back.evaluate(u) - curve.evaluate(u)).max() < 1e-12
