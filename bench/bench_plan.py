@@ -20,12 +20,8 @@ from sdit_path.config import load_config
 from sdit_path.geometry.hemisphere import partition
 from sdit_path.geometry.paths import PathBuilder, check_travel
 from sdit_path.nc.chords import chords_for_range
+from sdit_path.nc.words import count_blocks
 from sdit_path.pipeline import post_layer
-
-
-def blocks(text: str) -> int:
-    return sum(1 for line in text.splitlines()
-               if line.strip() and not line.lstrip().startswith((";", "(", "%")))
 
 
 def main(argv: list[str]) -> None:
@@ -55,7 +51,7 @@ def main(argv: list[str]) -> None:
     print()
     print(f"{'program':<28}{'blocks':>8}{'max radial dev [um]':>22}")
     for p in progs:
-        print(f"{p.file:<28}{blocks(p.text):>8}{p.built.max_deviation_mm * 1e3:>22.5f}")
+        print(f"{p.file:<28}{count_blocks(p.text):>8}{p.built.max_deviation_mm * 1e3:>22.5f}")
     for c in cfg.post.controllers:
         worst = max(p.built.max_deviation_mm for p in progs if p.controller == c)
         print(f"max radial deviation {c}: {worst * 1e3:.5f} um")

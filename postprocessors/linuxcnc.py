@@ -14,7 +14,7 @@ import re
 
 from sdit_path.nc.program import Comment, Dwell, LinearMove, PolylineMove, Program, SplineMove
 from sdit_path.nc.text import neutralise
-from sdit_path.nc.words import fixed, frame, trimmed, words
+from sdit_path.nc.words import frame, trimmed, words, xyz
 
 _SPECIAL = re.compile(r"^\s*(msg|debug|print|log|probe|abort)", re.IGNORECASE)
 _OFFSETS = {"G54", "G55", "G56", "G57", "G58", "G59"}
@@ -37,15 +37,12 @@ class LinuxCNC:
     def render(self, program: Program) -> str:
         d = program.decimals
 
-        def xyz(p) -> str:
-            return f"X{fixed(p[0], d)} Y{fixed(p[1], d)} Z{fixed(p[2], d)}"
-
         body: list[str] = []
         for item in program.items:
             if isinstance(item, Comment):
                 body.append(f"({_comment(item.text)})")
             elif isinstance(item, LinearMove):
-                body.append(f"G1 {xyz(item.point_mm)} F{trimmed(item.feed_mm_per_min, 3)}")
+                body.append(f"G1 {xyz(item.point_mm, d)} F{trimmed(item.feed_mm_per_min, 3)}")
             elif isinstance(item, Dwell):
                 body.append(f"(dwell at node {_comment(item.node_id)})")
                 body.append(f"G4 P{trimmed(item.seconds, 3)}")
@@ -54,7 +51,7 @@ class LinuxCNC:
                 for j, p in enumerate(item.points_mm):
                     if j in labels:
                         body.append(f"({_comment(labels[j])})")
-                    body.append(f"G1 {xyz(p)}" if j == 0 else xyz(p))
+                    body.append(f"G1 {xyz(p, d)}" if j == 0 else xyz(p, d))
             elif isinstance(item, SplineMove):
                 raise TypeError("LinuxCNC programs carry 3-D chords, not splines")
         tol = program.tolerance_mm

@@ -16,7 +16,7 @@ import math
 
 from sdit_path.nc.program import Comment, Dwell, LinearMove, PolylineMove, Program, SplineMove
 from sdit_path.nc.text import neutralise
-from sdit_path.nc.words import fixed, frame, trimmed, words
+from sdit_path.nc.words import frame, trimmed, words, xyz
 
 MAX_BLOCK_CHARS = 512
 _KEYWORDS = {"BSPLINE", "ASPLINE", "CSPLINE", "CIP", "CT", "POLY", "TRAORI", "TRAFOOF",
@@ -37,20 +37,17 @@ class Sinumerik840D:
     def render(self, program: Program) -> str:
         d = program.decimals
 
-        def xyz(p) -> str:
-            return f"X{fixed(p[0], d)} Y{fixed(p[1], d)} Z{fixed(p[2], d)}"
-
         body: list[str] = []
         for item in program.items:
             if isinstance(item, Comment):
                 body.append(f"; {neutralise(item.text)}")
             elif isinstance(item, LinearMove):
-                body.append(f"G1 {xyz(item.point_mm)} F{trimmed(item.feed_mm_per_min, 3)}")
+                body.append(f"G1 {xyz(item.point_mm, d)} F{trimmed(item.feed_mm_per_min, 3)}")
             elif isinstance(item, Dwell):
                 body.append(f"; dwell at node {neutralise(item.node_id)}")
                 body.append(f"G4 F{trimmed(item.seconds, 3)}")
             elif isinstance(item, SplineMove):
-                body.extend(self._spline(item, d, xyz))
+                body.extend(self._spline(item, d))
             elif isinstance(item, PolylineMove):
                 raise TypeError("SINUMERIK 840D programs carry splines, not chords")
         preamble = [f"G17 G90 G71 G94 G40 {program.work_offset}", "M5"]
@@ -59,7 +56,7 @@ class Sinumerik840D:
                      preamble=preamble, body=body)
 
     @staticmethod
-    def _spline(move: SplineMove, d: int, xyz) -> list[str]:
+    def _spline(move: SplineMove, d: int) -> list[str]:
         curve = move.curve
         labels = dict(move.labels)
         pl = f"PL={trimmed(move.knot_interval, 3)}"
@@ -67,7 +64,7 @@ class Sinumerik840D:
         for j in range(1, len(curve.control_points_mm)):
             if j in labels:
                 out.append(f"; {neutralise(labels[j])}")
-            words_ = xyz(curve.control_points_mm[j])
+            words_ = xyz(curve.control_points_mm[j], d)
             if curve.weights is not None:
                 words_ += f" PW={curve.weights[j]:.4f}"
             if j == 1:

@@ -39,6 +39,7 @@ def plan_command(config: str | None, out_dir: str, force: bool, quiet: bool) -> 
     and controller, plus plan.json."""
     from .config import load_config
     from .nc.registry import get_postprocessor
+    from .nc.words import count_blocks
     from .output import write_tree
     from .pipeline import plan, step_count
     from .report.manifest import manifest_text
@@ -72,14 +73,9 @@ def plan_command(config: str | None, out_dir: str, force: bool, quiet: bool) -> 
         row = [path.layer, str(len(set(path.segment_order()))), str(len(path.dwells))]
         for c in cfg.post.controllers:
             p = next(x for x in result.programs if x.layer == path.layer and x.controller == c)
-            row += [str(_blocks(p.text)), f"{p.built.max_deviation_mm * 1e3:.4f}"]
+            row += [str(count_blocks(p.text)), f"{p.built.max_deviation_mm * 1e3:.4f}"]
         table.add_row(*row)
     out_console = Console()
     out_console.print(table)
     out_console.print(f"wrote {len(files)} files to {out}/ (programs under "
                       f"{', '.join(c + '/' for c in cfg.post.controllers)}, manifest plan.json)")
-
-
-def _blocks(text: str) -> int:
-    return sum(1 for line in text.splitlines()
-               if line.strip() and not line.lstrip().startswith((";", "(", "%")))

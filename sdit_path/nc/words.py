@@ -29,6 +29,17 @@ def trimmed(value: float, decimals: int = 4) -> str:
     return text
 
 
+def xyz(point, decimals: int) -> str:
+    """``X.. Y.. Z..`` words of a point, fixed decimals."""
+    return " ".join(f"{a}{fixed(v, decimals)}" for a, v in zip("XYZ", point))
+
+
+def count_blocks(text: str) -> int:
+    """NC blocks of a program: lines with code, not comment-only lines or ``%``."""
+    return sum(1 for line in text.splitlines()
+               if line.strip() and not line.lstrip().startswith((";", "(", "%")))
+
+
 WORD = re.compile(r"([A-Z]+)(=?)([-+]?(?:\d+\.?\d*|\.\d+))")
 
 

@@ -8,6 +8,7 @@ import math
 from pathlib import PurePath
 
 from .. import __version__
+from ..nc.words import count_blocks
 from ..pipeline import PlanResult
 
 FORMAT = "sdit-path/plan"
@@ -67,8 +68,7 @@ def manifest(result: PlanResult) -> dict:
             "start_node": path.start_node,
             "segment_order": list(path.segment_order()),
             "dwell_nodes": [d.node_id for d in path.dwells],
-            "blocks": sum(1 for line in text.splitlines()
-                          if line.strip() and not line.lstrip().startswith((";", "(", "%"))),
+            "blocks": count_blocks(text),
             "path_length_mm": round(sum(r.length_mm for r in path.runs), 6),
             "max_radial_deviation_um": round(prog.built.max_deviation_mm * 1e3, 6),
             "sha256": hashlib.sha256(text.encode("ascii")).hexdigest(),
