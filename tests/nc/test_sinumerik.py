@@ -103,6 +103,8 @@ def test_default_programs_round_trip_on_the_sphere(default_plan):
         assert reported <= 1e-5
     assert worst <= 1e-5
     assert "TOP" in {d.node_id for d in default_plan.paths[-1].dwells}
+    every = {d.node_id for path in default_plan.paths for d in path.dwells}
+    assert every == set(node_pos), set(node_pos) - every
 
 
 def test_dwell_blocks_are_alone_and_feed_is_g94(default_plan):
