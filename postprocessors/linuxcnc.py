@@ -12,7 +12,8 @@ from __future__ import annotations
 import math
 import re
 
-from sdit_path.nc.program import Comment, Dwell, LinearMove, PolylineMove, Program, SplineMove
+from sdit_path.nc.program import (Comment, Dwell, LinearMove, PolylineMove, Program,
+                                  ProgramStop, SplineMove)
 from sdit_path.nc.text import neutralise
 from sdit_path.nc.words import frame, trimmed, words, xyz
 
@@ -52,6 +53,9 @@ class LinuxCNC:
                     if j in labels:
                         body.append(f"({_comment(labels[j])})")
                     body.append(f"G1 {xyz(p, d)}" if j == 0 else xyz(p, d))
+            elif isinstance(item, ProgramStop):
+                body.append(f"(STOP: {_comment(item.message)})")
+                body.append("M0")
             elif isinstance(item, SplineMove):
                 raise TypeError("LinuxCNC programs carry 3-D chords, not splines")
         tol = program.tolerance_mm

@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import math
 
-from sdit_path.nc.program import Comment, Dwell, LinearMove, PolylineMove, Program, SplineMove
+from sdit_path.nc.program import (Comment, Dwell, LinearMove, PolylineMove, Program,
+                                  ProgramStop, SplineMove)
 from sdit_path.nc.text import neutralise
 from sdit_path.nc.words import frame, trimmed, words, xyz
 
@@ -48,6 +49,9 @@ class Sinumerik840D:
                 body.append(f"G4 F{trimmed(item.seconds, 3)}")
             elif isinstance(item, SplineMove):
                 body.extend(self._spline(item, d))
+            elif isinstance(item, ProgramStop):
+                body.append(f"; STOP: {neutralise(item.message)}")
+                body.append("M0")
             elif isinstance(item, PolylineMove):
                 raise TypeError("SINUMERIK 840D programs carry splines, not chords")
         preamble = [f"G17 G90 G71 G94 G40 {program.work_offset}", "M5"]

@@ -19,6 +19,8 @@ from .errors import SditError
 
 def _fail(exc: SditError) -> None:
     click.echo(f"sdit-path: error: {exc}", err=True)
+    for line in getattr(exc, "details", []):
+        click.echo(f"  {line}", err=True)
     sys.exit(exc.exit_code)
 
 
@@ -33,8 +35,11 @@ def main() -> None:
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Output directory: DIR/<controller>/ programs and DIR/plan.json.")
 @click.option("--force", is_flag=True, help="Replace the content of a non-empty DIR.")
+@click.option("--skip-infeasible", is_flag=True,
+              help="Leave out segments that are unreachable or collide (plan.json says why).")
 @click.option("--quiet", "-q", is_flag=True, help="No progress and no summary.")
-def plan_command(config: str | None, out_dir: str, force: bool, quiet: bool) -> None:
+def plan_command(config: str | None, out_dir: str, force: bool, skip_infeasible: bool,
+                 quiet: bool) -> None:
     """Plan CONFIG (default: the bundled 3-axis sample) and write one program per layer
     and controller, plus plan.json."""
     from .config import load_config
@@ -51,7 +56,8 @@ def plan_command(config: str | None, out_dir: str, force: bool, quiet: bool) -> 
                       console=console, transient=True,
                       disable=quiet or not console.is_terminal) as bar:
             task = bar.add_task("planning", total=step_count(cfg))
-            result = plan(cfg, on_step=lambda msg: bar.update(task, advance=1, description=msg))
+            result = plan(cfg, on_step=lambda msg: bar.update(task, advance=1, description=msg),
+                          skip_infeasible=skip_infeasible)
         files = {p.file: p.text for p in result.programs}
         files["plan.json"] = manifest_text(result)
         out = write_tree(out_dir, files, force=force)

@@ -25,30 +25,78 @@ DEFAULT_SAMPLE = "vmc_3axis.toml"
 PASSES = ("forward", "reverse")
 TRANSITS = ("meridian", "none")
 PROJECTIONS = ("stereographic", "vertical")
-LINEAR_AXES = ("X", "Y", "Z")
+AXIS_NAMES = ("X", "Y", "Z", "A", "B", "C")
+SCHEDULES = ("locked", "moving")
+SHAPES = ("box", "cylinder", "capsule", "sphere", "mesh")
+FIVE_AXIS_MODES = ("traori", "machine")
+#: Default direction of an axis by name and by the branch carrying it.
+_DEFAULT_DIRECTION = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0),
+                      "A": (1.0, 0.0, 0.0), "B": (0.0, 1.0, 0.0), "C": (0.0, 0.0, 1.0)}
 
 
 @dataclass(frozen=True, slots=True)
-class AxisLimits:
-    """Travel and dynamic limits of one machine axis (program coordinates, mm)."""
+class Axis:
+    """One machine axis.
+
+    ``kind`` is ``"linear"`` or ``"rotary"``.  Limits are in the axis' own internal
+    unit: mm (and mm/s, mm/s^2, mm/s^3) for linear axes, rad (rad/s ...) for rotary
+    ones.  ``direction`` is the unit vector, in the bed frame with every axis at 0,
+    along which the carried body moves (linear) or about which it turns by the
+    right-hand rule (rotary) when the axis value increases; for an axis under the
+    table that is normally the opposite of the programmed direction.  ``point_mm`` is
+    a point of a rotary axis line (bed frame, every axis at 0).
+    """
 
     name: str
-    travel_mm: tuple[float, float]
-    max_velocity_mm_per_s: float
-    max_acceleration_mm_per_s2: float
-    max_jerk_mm_per_s3: float
+    kind: str
+    direction: tuple[float, float, float]
+    point_mm: tuple[float, float, float]
+    travel: tuple[float, float]
+    max_velocity: float
+    max_acceleration: float
+    max_jerk: float
+
+    @property
+    def is_rotary(self) -> bool:
+        return self.kind == "rotary"
+
+    @property
+    def unit(self) -> str:
+        return "deg" if self.is_rotary else "mm"
+
+    def to_display(self, value: float) -> float:
+        """Internal value (mm or rad) in the unit users read (mm or deg)."""
+        return math.degrees(value) if self.is_rotary else value
 
 
 @dataclass(frozen=True, slots=True)
 class MachineConfig:
-    name: str
-    axes: tuple[AxisLimits, ...]
+    """The kinematic chain: ``workpiece_chain`` lists the axes from the bed to the table
+    (the table frame, in which the program and the pivot are given, is the bed frame
+    when every axis is at 0); ``tool_chain`` the axes from the bed to the spindle.  The
+    spindle gauge point is at the bed origin with every axis at 0 and the ball centre
+    ``tool_length_mm`` from it against ``spindle_direction``."""
 
-    def axis(self, name: str) -> AxisLimits:
+    name: str
+    axes: tuple[Axis, ...]
+    workpiece_chain: tuple[str, ...]
+    tool_chain: tuple[str, ...]
+    tool_length_mm: float
+    spindle_direction: tuple[float, float, float]
+
+    def axis(self, name: str) -> Axis:
         for ax in self.axes:
             if ax.name == name:
                 return ax
         raise KeyError(name)
+
+    @property
+    def rotary_axes(self) -> tuple[Axis, ...]:
+        return tuple(a for a in self.axes if a.is_rotary)
+
+    @property
+    def linear_axes(self) -> tuple[Axis, ...]:
+        return tuple(a for a in self.axes if not a.is_rotary)
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,6 +106,7 @@ class BallbarConfig:
     bar_length_mm: float
     pivot_mm: tuple[float, float, float]
     ball_diameter_mm: float
+    bar_diameter_mm: float
     sensor_range_mm: float
     length_range_mm: tuple[float, float]
 
@@ -78,6 +127,26 @@ class CurveConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class RotaryConfig:
+    """How the rotary axes move during the test.
+
+    ``locked``: every rotary axis stays at ``locked_rad`` (the paper's 3-axis run on a
+    5-axis machine).  ``moving``: the turn axis follows the bar's azimuth so that the
+    bar keeps the azimuth ``hold_azimuth_rad`` in the machine, and the tilt axis moves
+    linearly with the bar's elevation from ``tilt_at_equator_rad`` to
+    ``tilt_at_pole_rad``.  Angles are radians.
+    """
+
+    schedule: str
+    locked_rad: tuple[tuple[str, float], ...]
+    tilt_axis: str
+    turn_axis: str
+    hold_azimuth_rad: float
+    tilt_at_equator_rad: float
+    tilt_at_pole_rad: float
+
+
+@dataclass(frozen=True, slots=True)
 class TestConfig:
     __test__ = False  # not a pytest class
 
@@ -90,6 +159,40 @@ class TestConfig:
     transit: str
     projection: str
     curve: CurveConfig
+    rotary: RotaryConfig
+
+
+@dataclass(frozen=True, slots=True)
+class CheckConfig:
+    """Reachability and interference settings."""
+
+    travel_margin_mm: float
+    angle_margin_rad: float
+    safety_clearance_mm: float
+    pose_spacing_mm: float
+
+
+@dataclass(frozen=True, slots=True)
+class ScenePart:
+    """A collision part attached to a body (an axis name, or ``bed``), placed with
+    every axis at 0 in the bed frame.  ``shape`` is box, cylinder, capsule, sphere or
+    mesh; ``size_mm`` holds (x, y, z) for a box, (radius, length) for a cylinder or
+    capsule, (radius,) for a sphere; cylinders and capsules are centred on
+    ``position_mm`` along ``axis``; meshes are read from ``mesh_file``."""
+
+    name: str
+    body: str
+    shape: str
+    size_mm: tuple[float, ...]
+    position_mm: tuple[float, float, float]
+    axis: tuple[float, float, float]
+    mesh_file: str
+
+
+@dataclass(frozen=True, slots=True)
+class SceneConfig:
+    parts: tuple[ScenePart, ...]
+    allowed_contacts: tuple[tuple[str, str], ...]
 
 
 @dataclass(frozen=True, slots=True)
@@ -102,6 +205,7 @@ class PostConfig:
     chord_tolerance_um: float
     work_offset: str
     comment: str
+    five_axis_mode: str
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,6 +215,8 @@ class Config:
     ballbar: BallbarConfig
     test: TestConfig
     post: PostConfig
+    check: CheckConfig
+    scene: SceneConfig
     text: str = field(default="", repr=False, compare=False)
 
 
@@ -282,34 +388,91 @@ def _check_bounds(reader: _Reader, key: str, value: float, gt, ge, lt, le, unit:
 
 # --------------------------------------------------------------------------- sections
 
-_AXIS_KEYS = ("travel_mm", "max_velocity_mm_per_s", "max_acceleration_mm_per_s2",
-              "max_jerk_mm_per_s3")
+_LINEAR_KEYS = ("type", "direction", "travel_mm", "max_velocity_mm_per_s",
+                "max_acceleration_mm_per_s2", "max_jerk_mm_per_s3")
+_ROTARY_KEYS = ("type", "direction", "point_mm", "travel_deg", "max_velocity_deg_per_s",
+                "max_acceleration_deg_per_s2", "max_jerk_deg_per_s3")
+
+
+def _unit_vector(r: _Reader, data: dict, key: str, default) -> tuple[float, float, float]:
+    v = r.vector(data, key, 3, default=default)
+    n = math.sqrt(sum(x * x for x in v))
+    if n < 1e-12:
+        raise r.fail(key, "expected a non-zero direction vector")
+    return tuple(x / n for x in v)
+
+
+def _axis(r: _Reader, a: dict, key: str, name: str, on_workpiece: bool) -> Axis:
+    kind = r.string(a, f"{key}.type", "rotary" if name in "ABC" else "linear", ("linear", "rotary"))
+    r.no_unknown(a, key, _ROTARY_KEYS if kind == "rotary" else _LINEAR_KEYS)
+    default = _DEFAULT_DIRECTION[name]
+    if kind == "linear" and on_workpiece:
+        default = tuple(-x for x in default)  # the table moves against the program axis
+    direction = _unit_vector(r, a, f"{key}.direction", default)
+    if kind == "linear":
+        lo, hi = r.vector(a, f"{key}.travel_mm", 2, unit="mm")
+        scale, unit, point = 1.0, "mm", (0.0, 0.0, 0.0)
+    else:
+        lo, hi = r.vector(a, f"{key}.travel_deg", 2, unit="deg")
+        scale, unit = math.pi / 180.0, "deg"
+        point = r.vector(a, f"{key}.point_mm", 3, default=(0.0, 0.0, 0.0), unit="mm")
+    if not lo < hi:
+        raise r.fail(f"{key}.travel_{unit}", f"expected [min, max] with min < max, got [{lo:g}, {hi:g}]")
+    return Axis(
+        name=name, kind=kind, direction=direction, point_mm=point,
+        travel=(lo * scale, hi * scale),
+        max_velocity=r.number(a, f"{key}.max_velocity_{unit}_per_s", gt=0, unit=f"{unit}/s") * scale,
+        max_acceleration=r.number(a, f"{key}.max_acceleration_{unit}_per_s2", gt=0,
+                                  unit=f"{unit}/s^2") * scale,
+        max_jerk=r.number(a, f"{key}.max_jerk_{unit}_per_s3", gt=0, unit=f"{unit}/s^3") * scale,
+    )
 
 
 def _machine(r: _Reader, root: dict) -> MachineConfig:
-    m = r.table(root, "machine", ("name", "axes"))
+    m = r.table(root, "machine", ("name", "axes", "workpiece_chain", "tool_chain", "tool_length_mm",
+                                  "spindle_direction"))
     name = r.string(m, "machine.name")
-    axes_table = r.table(m, "machine.axes", LINEAR_AXES)
+    workpiece = r.strings(m, "machine.workpiece_chain", ("X", "Y"))
+    tool = r.strings(m, "machine.tool_chain", ("Z",))
+    chain = workpiece + tool
+    for ax in chain:
+        if ax not in AXIS_NAMES:
+            raise r.fail("machine.workpiece_chain" if ax in workpiece else "machine.tool_chain",
+                         f"unknown axis {ax!r}; expected axis names among {', '.join(AXIS_NAMES)}")
+    if len(set(chain)) != len(chain):
+        raise r.fail("machine.workpiece_chain", f"an axis appears twice in the chains: {list(chain)}")
+    axes_table = r.table(m, "machine.axes", chain)
     axes = []
-    for ax in LINEAR_AXES:
+    for ax in chain:
         key = f"machine.axes.{ax}"
-        a = r.table(axes_table, key, _AXIS_KEYS)
-        lo, hi = r.vector(a, f"{key}.travel_mm", 2, unit="mm")
-        if not lo < hi:
-            raise r.fail(f"{key}.travel_mm", f"expected [min, max] with min < max, got [{lo:g}, {hi:g}]")
-        axes.append(AxisLimits(
-            name=ax, travel_mm=(lo, hi),
-            max_velocity_mm_per_s=r.number(a, f"{key}.max_velocity_mm_per_s", gt=0, unit="mm/s"),
-            max_acceleration_mm_per_s2=r.number(a, f"{key}.max_acceleration_mm_per_s2", gt=0,
-                                                unit="mm/s^2"),
-            max_jerk_mm_per_s3=r.number(a, f"{key}.max_jerk_mm_per_s3", gt=0, unit="mm/s^3"),
-        ))
-    return MachineConfig(name=name, axes=tuple(axes))
+        a = axes_table.get(ax)
+        if not isinstance(a, dict):
+            raise r.fail(key, f"missing table; the chains name axis {ax}, expected a [{key}] section")
+        axes.append(_axis(r, a, key, ax, ax in workpiece))
+    linear = [a for a in axes if not a.is_rotary]
+    if len(linear) != 3:
+        raise r.fail("machine.workpiece_chain",
+                     f"expected exactly 3 linear axes in the chains, got {len(linear)}")
+    det = _det3([a.direction for a in linear])
+    if abs(det) < 1e-6:
+        raise r.fail("machine.axes", "the 3 linear axis directions must be independent")
+    if any(a.is_rotary for a in axes if a.name in tool):
+        raise r.fail("machine.tool_chain", "rotary axes in the tool branch (swivel heads) are not "
+                                           "supported yet; put rotary axes in machine.workpiece_chain")
+    return MachineConfig(
+        name=name, axes=tuple(axes), workpiece_chain=workpiece, tool_chain=tool,
+        tool_length_mm=r.number(m, "machine.tool_length_mm", 0.0, ge=0, unit="mm"),
+        spindle_direction=_unit_vector(r, m, "machine.spindle_direction", (0.0, 0.0, 1.0)))
+
+
+def _det3(rows) -> float:
+    (a, b, c), (d, e, f), (g, h, i) = rows
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
 
 def _ballbar(r: _Reader, root: dict, machine: MachineConfig) -> BallbarConfig:
     b = r.table(root, "ballbar", ("bar_length_mm", "pivot_mm", "ball_diameter_mm",
-                                  "sensor_range_mm", "length_range_mm"))
+                                  "bar_diameter_mm", "sensor_range_mm", "length_range_mm"))
     length_range = r.vector(b, "ballbar.length_range_mm", 2, default=(50.0, 600.0), unit="mm")
     if not 0 < length_range[0] <= length_range[1]:
         raise r.fail("ballbar.length_range_mm",
@@ -325,21 +488,19 @@ def _ballbar(r: _Reader, root: dict, machine: MachineConfig) -> BallbarConfig:
         raise r.fail("ballbar.ball_diameter_mm",
                      f"expected a ball diameter smaller than the bar length {length:g} mm, got {ball:g}")
     sensor = r.number(b, "ballbar.sensor_range_mm", default=1.0, gt=0, le=10.0, unit="mm")
+    bar = r.number(b, "ballbar.bar_diameter_mm", default=min(12.0, ball), gt=0, unit="mm")
+    if bar > ball:
+        raise r.fail("ballbar.bar_diameter_mm",
+                     f"expected a bar no thicker than the balls ({ball:g} mm), got {bar:g}")
     pivot = r.vector(b, "ballbar.pivot_mm", 3, unit="mm")
-    for value, ax in zip(pivot, machine.axes):
-        lo, hi = ax.travel_mm
-        if not lo <= value <= hi:
-            raise r.fail("ballbar.pivot_mm",
-                         f"pivot {ax.name}={value:g} mm is outside the {ax.name} travel "
-                         f"[{lo:g}, {hi:g}] mm (machine.axes.{ax.name}.travel_mm)")
     return BallbarConfig(bar_length_mm=length, pivot_mm=pivot, ball_diameter_mm=ball,
-                         sensor_range_mm=sensor, length_range_mm=length_range)
+                         bar_diameter_mm=bar, sensor_range_mm=sensor, length_range_mm=length_range)
 
 
 def _test(r: _Reader, root: dict, machine: MachineConfig) -> TestConfig:
     t = r.table(root, "test", ("track_elevations_deg", "nodes_per_track", "subsegments_per_sector",
                                "dwell_s", "feed_mm_per_min", "passes", "transit", "projection",
-                               "curve"))
+                               "curve", "rotary"))
     elev = r.numbers(t, "test.track_elevations_deg", (0.0, 18.0, 36.0, 54.0, 72.0), unit="deg")
     if len(elev) > 25:
         raise r.fail("test.track_elevations_deg", f"expected at most 25 tracks, got {len(elev)}")
@@ -357,8 +518,8 @@ def _test(r: _Reader, root: dict, machine: MachineConfig) -> TestConfig:
     subs = r.integer(t, "test.subsegments_per_sector", 3, ge=1, le=20)
     dwell = r.number(t, "test.dwell_s", 2.0, gt=0, le=3600, unit="s")
     feed = r.number(t, "test.feed_mm_per_min", gt=0, unit="mm/min")
-    slowest = min(ax.max_velocity_mm_per_s for ax in machine.axes) * 60.0
-    fastest_path = math.sqrt(sum((ax.max_velocity_mm_per_s * 60.0) ** 2 for ax in machine.axes))
+    slowest = min(ax.max_velocity for ax in machine.linear_axes) * 60.0
+    fastest_path = math.sqrt(sum((ax.max_velocity * 60.0) ** 2 for ax in machine.linear_axes))
     if feed > fastest_path:
         raise r.fail("test.feed_mm_per_min",
                      f"expected a feed the machine can reach (<= {fastest_path:.0f} mm/min from the "
@@ -383,7 +544,98 @@ def _test(r: _Reader, root: dict, machine: MachineConfig) -> TestConfig:
                       dwell_s=dwell, feed_mm_per_min=feed, passes=passes, transit=transit,
                       projection=projection,
                       curve=CurveConfig(amplitude=amplitude, waves_per_sector=waves,
-                                        cap_elevation_deg=cap))
+                                        cap_elevation_deg=cap),
+                      rotary=_rotary(r, t, machine))
+
+
+def _rotary(r: _Reader, t: dict, machine: MachineConfig) -> RotaryConfig:
+    rot = r.table(t, "test.rotary", ("schedule", "locked_deg", "tilt_axis", "turn_axis",
+                                     "hold_azimuth_deg", "tilt_at_equator_deg", "tilt_at_pole_deg"),
+                  required=False)
+    names = [a.name for a in machine.rotary_axes]
+    schedule = r.string(rot, "test.rotary.schedule", "locked", SCHEDULES)
+    locked_table = rot.get("locked_deg", {})
+    if not isinstance(locked_table, dict):
+        raise r.fail("test.rotary.locked_deg", "expected a table of axis = angle in deg, e.g. {B = 0, C = 0}")
+    r.no_unknown(locked_table, "test.rotary.locked_deg", tuple(names))
+    locked = tuple((n, math.radians(r.number(locked_table, f"test.rotary.locked_deg.{n}", 0.0,
+                                               unit="deg"))) for n in names)
+    tilt = r.string(rot, "test.rotary.tilt_axis", names[0] if len(names) == 2 else "")
+    turn = r.string(rot, "test.rotary.turn_axis", names[-1] if names else "")
+    if schedule == "moving":
+        if len(names) != 2:
+            raise r.fail("test.rotary.schedule",
+                         f"'moving' needs two rotary axes (tilt and turn), the machine has {len(names)}")
+        for key, value in (("tilt_axis", tilt), ("turn_axis", turn)):
+            if value not in names:
+                raise r.fail(f"test.rotary.{key}",
+                             f"expected one of the rotary axes {', '.join(names)}, got {value!r}")
+        if tilt == turn:
+            raise r.fail("test.rotary.turn_axis", "tilt and turn axes must differ")
+    return RotaryConfig(
+        schedule=schedule, locked_rad=locked, tilt_axis=tilt, turn_axis=turn,
+        hold_azimuth_rad=math.radians(r.number(rot, "test.rotary.hold_azimuth_deg", 0.0, unit="deg")),
+        tilt_at_equator_rad=math.radians(r.number(rot, "test.rotary.tilt_at_equator_deg", 0.0,
+                                                  unit="deg")),
+        tilt_at_pole_rad=math.radians(r.number(rot, "test.rotary.tilt_at_pole_deg", 0.0, unit="deg")))
+
+
+def _check(r: _Reader, root: dict) -> CheckConfig:
+    c = r.table(root, "check", ("travel_margin_mm", "angle_margin_deg", "safety_clearance_mm",
+                                "pose_spacing_mm"), required=False)
+    return CheckConfig(
+        travel_margin_mm=r.number(c, "check.travel_margin_mm", 0.0, ge=0, unit="mm"),
+        angle_margin_rad=math.radians(r.number(c, "check.angle_margin_deg", 0.0, ge=0, unit="deg")),
+        safety_clearance_mm=r.number(c, "check.safety_clearance_mm", 1.0, ge=0, unit="mm"),
+        pose_spacing_mm=r.number(c, "check.pose_spacing_mm", 0.5, gt=0, le=0.5, unit="mm"))
+
+
+_PART_KEYS = ("name", "body", "shape", "size_mm", "position_mm", "axis", "mesh_file")
+_SIZES = {"box": 3, "cylinder": 2, "capsule": 2, "sphere": 1, "mesh": 0}
+#: Parts sdit-path adds itself: the two balls and the bar between them.
+BALLBAR_PARTS = ("pivot_ball", "tool_ball", "bar")
+
+
+def _scene(r: _Reader, root: dict, machine: MachineConfig) -> SceneConfig:
+    sc = r.table(root, "scene", ("parts", "allowed_contacts"), required=False)
+    raw_parts = sc.get("parts", [])
+    if not isinstance(raw_parts, list) or not all(isinstance(p, dict) for p in raw_parts):
+        raise r.fail("scene.parts", "expected an array of tables [[scene.parts]]")
+    bodies = ("bed",) + machine.workpiece_chain + machine.tool_chain
+    parts, names = [], set(BALLBAR_PARTS)
+    for k, p in enumerate(raw_parts):
+        key = f"scene.parts[{k}]"
+        r.no_unknown(p, key, _PART_KEYS)
+        name = r.string(p, f"{key}.name")
+        if name in names:
+            raise r.fail(f"{key}.name", f"part name {name!r} is used twice (or is reserved)")
+        names.add(name)
+        body = r.string(p, f"{key}.body", choices=bodies)
+        shape = r.string(p, f"{key}.shape", choices=SHAPES)
+        n = _SIZES[shape]
+        size = r.vector(p, f"{key}.size_mm", n, unit="mm") if n else ()
+        if any(v <= 0 for v in size):
+            raise r.fail(f"{key}.size_mm", f"expected positive sizes, got {list(size)}")
+        mesh = r.string(p, f"{key}.mesh_file", "") if shape == "mesh" else ""
+        if shape == "mesh" and not mesh:
+            raise r.fail(f"{key}.mesh_file", "a mesh part needs mesh_file (an STL path)")
+        parts.append(ScenePart(name=name, body=body, shape=shape, size_mm=size,
+                               position_mm=r.vector(p, f"{key}.position_mm", 3, default=(0, 0, 0),
+                                                    unit="mm"),
+                               axis=_unit_vector(r, p, f"{key}.axis", (0.0, 0.0, 1.0)),
+                               mesh_file=mesh))
+    allowed = []
+    raw_allowed = sc.get("allowed_contacts", [])
+    if not isinstance(raw_allowed, list) or not all(
+            isinstance(x, list) and len(x) == 2 and all(isinstance(y, str) for y in x)
+            for x in raw_allowed):
+        raise r.fail("scene.allowed_contacts", "expected a list of [part, part] name pairs")
+    for a, b in raw_allowed:
+        for n in (a, b):
+            if n not in names:
+                raise r.fail("scene.allowed_contacts", f"unknown part {n!r}; parts: {', '.join(sorted(names))}")
+        allowed.append((a, b))
+    return SceneConfig(parts=tuple(parts), allowed_contacts=tuple(allowed))
 
 
 def _post(r: _Reader, root: dict) -> PostConfig:
@@ -391,7 +643,7 @@ def _post(r: _Reader, root: dict) -> PostConfig:
 
     p = r.table(root, "post", ("controllers", "program_prefix", "decimals", "spline_degree",
                                "spline_tolerance_um", "chord_tolerance_um", "work_offset",
-                               "comment"))
+                               "comment", "five_axis_mode"))
     controllers = r.strings(p, "post.controllers", ("sinumerik840d", "linuxcnc"))
     known = known_controllers()
     for name in controllers:
@@ -413,6 +665,7 @@ def _post(r: _Reader, root: dict) -> PostConfig:
         chord_tolerance_um=r.number(p, "post.chord_tolerance_um", 0.1, gt=0, le=100, unit="um"),
         work_offset=offset,
         comment=r.string(p, "post.comment", ""),
+        five_axis_mode=r.string(p, "post.five_axis_mode", "traori", FIVE_AXIS_MODES),
     )
 
 
@@ -426,12 +679,35 @@ def parse_config(text: str, source: str = "<config>") -> Config:
         where = f"{source}:{m.group(1)}" if m else source
         raise ConfigError(where, f"cannot parse TOML: {msg}") from None
     r = _Reader(source, text)
-    r.no_unknown(root, "", ("machine", "ballbar", "test", "post"))
+    r.no_unknown(root, "", ("machine", "ballbar", "test", "post", "check", "scene"))
     machine = _machine(r, root)
     ballbar = _ballbar(r, root, machine)
     test = _test(r, root, machine)
     post = _post(r, root)
-    return Config(source=source, machine=machine, ballbar=ballbar, test=test, post=post, text=text)
+    check = _check(r, root)
+    scene = _scene(r, root, machine)
+    _pivot_reachable(r, machine, ballbar, test)
+    return Config(source=source, machine=machine, ballbar=ballbar, test=test, post=post,
+                  check=check, scene=scene, text=text)
+
+
+def _pivot_reachable(r: _Reader, machine: MachineConfig, ballbar: BallbarConfig,
+                     test: TestConfig) -> None:
+    """The tool ball must be able to reach the pivot position itself (rotary axes at
+    their locked angles): a pivot outside the travel is a config mistake."""
+    from .machine.kinematics import Kinematics  # the chain is the one source of truth
+
+    kin = Kinematics(machine)
+    angles = dict(test.rotary.locked_rad)
+    q = kin.inverse([ballbar.pivot_mm], {n: [v] for n, v in angles.items()})
+    for j, ax in enumerate(kin.axes):
+        lo, hi = ax.travel
+        v = float(q[0, j])
+        if not lo - 1e-9 <= v <= hi + 1e-9:
+            raise r.fail("ballbar.pivot_mm",
+                         f"pivot {list(ballbar.pivot_mm)} mm needs {ax.name}={ax.to_display(v):.3f} "
+                         f"{ax.unit}, outside the {ax.name} travel [{ax.to_display(lo):g}, "
+                         f"{ax.to_display(hi):g}] {ax.unit} (machine.axes.{ax.name})")
 
 
 def load_config(path: str | Path | None = None) -> Config:

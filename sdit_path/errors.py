@@ -30,9 +30,15 @@ class ConfigError(SditError):
 
 
 class PlanError(SditError):
-    """A valid configuration that cannot be planned (for example out of travel)."""
+    """A valid configuration that cannot be planned (for example out of travel).
+
+    ``details`` holds one line per offending piece, printed under the message."""
 
     exit_code = 3
+
+    def __init__(self, message: str, details: list[str] | None = None):
+        super().__init__(message)
+        self.details = list(details or [])
 
 
 class LintError(SditError):

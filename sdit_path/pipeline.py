@@ -1,16 +1,24 @@
-"""The planning pipeline: config -> partition -> layer paths -> neutral programs ->
-controller text, linted.  Nothing here touches the file system."""
+"""The planning pipeline: config -> partition -> layer paths -> poses (kinematics,
+reachability, interference) -> neutral programs -> controller text, linted.
+Nothing here touches the file system."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
+
 from . import __version__
 from .config import Config
-from .errors import LintError
+from .errors import LintError, PlanError
 from .geometry.hemisphere import Hemisphere, partition
-from .geometry.paths import LayerPath, PathBuilder, check_travel
+from .geometry.paths import LayerPath, PathBuilder
+from .interference.check import Clearance, run_clearances
+from .interference.scene import Scene
+from .machine.kinematics import Kinematics
+from .machine.poses import RunPoses, layer_poses
+from .machine.reach import PieceCheck, Violation, reach_violations
 from .nc.build import BuiltProgram, build_program
 from .nc.registry import get_postprocessor
 
@@ -27,50 +35,146 @@ class PlannedProgram:
 
 
 @dataclass(frozen=True, slots=True)
+class LayerPlan:
+    """A layer's path as programmed, its poses, and the verdict on every piece it was
+    planned with (including pieces then left out)."""
+
+    path: LayerPath
+    poses: tuple[RunPoses, ...]
+    checks: tuple[PieceCheck, ...]
+
+
+@dataclass(frozen=True, slots=True)
 class PlanResult:
     config: Config
     hemisphere: Hemisphere
-    paths: tuple[LayerPath, ...]
+    layers: tuple[LayerPlan, ...]
     programs: tuple[PlannedProgram, ...]
 
+    @property
+    def paths(self) -> tuple[LayerPath, ...]:
+        return tuple(la.path for la in self.layers)
 
-def travel_limits(config: Config) -> dict[str, tuple[float, float]]:
-    return {ax.name: ax.travel_mm for ax in config.machine.axes}
+
+def check_layer(path: LayerPath, config: Config, kin: Kinematics, scene: Scene
+                ) -> tuple[tuple[RunPoses, ...], tuple[PieceCheck, ...]]:
+    """Poses along ``path`` and a reach + interference verdict per piece id."""
+    poses = layer_poses(path, config, kin)
+    found: dict[str, list[Violation]] = {}
+    kinds: dict[str, str] = {}
+    clear: dict[str, Clearance] = {}
+    for rp in poses:
+        viol = reach_violations(rp, config, kin)
+        cl, coll = run_clearances(rp, scene, config.check.safety_clearance_mm)
+        for k, piece in enumerate(rp.run.pieces):
+            kinds[piece.id] = piece.kind
+            found.setdefault(piece.id, [])
+            found[piece.id] += viol.get(k, []) + coll.get(k, [])
+            if k in cl and (piece.id not in clear or cl[k].value_mm < clear[piece.id].value_mm):
+                clear[piece.id] = cl[k]
+    checks = []
+    for pid, v in found.items():
+        # one violation per kind and subject: the worst
+        worst: dict[tuple[str, str], Violation] = {}
+        for x in v:
+            key = (x.kind, x.subject)
+            if key not in worst or x.overshoot > worst[key].overshoot:
+                worst[key] = x
+        c = clear.get(pid)
+        checks.append(PieceCheck(pid, kinds[pid], tuple(worst.values()),
+                                 None if c is None else c.value_mm, None if c is None else c.pair,
+                                 None if c is None else c.ball_mm))
+    return poses, tuple(checks)
 
 
-def post_layer(path: LayerPath, config: Config, hemi: Hemisphere,
-               controller: str) -> PlannedProgram:
+def lint_limits(config: Config, kin: Kinematics) -> dict[str, tuple[float, float]]:
+    """Travel limits to lint the programmed words against, in the programmed frame.
+
+    Programs of a machine whose rotary axes are locked are written in the table frame,
+    which is then a pure translation of the linear axes (when it is): the limits are
+    shifted into it.  Otherwise the exact check is the kinematic one, upstream."""
+    if config.test.rotary.schedule != "locked":
+        return {}
+    probe = np.vstack([np.zeros(3), np.eye(3)])
+    angles = {n: np.full(4, v) for n, v in config.test.rotary.locked_rad}
+    q = kin.inverse(probe, angles)
+    lin = list(kin.linear)
+    jac = q[1:, lin] - q[0, lin]
+    if not np.allclose(np.abs(jac), np.eye(3), atol=1e-12) or not np.allclose(jac, np.eye(3)):
+        return {}
+    limits = {}
+    for col, i in enumerate(lin):
+        ax = kin.axes[i]
+        program_axis = "XYZ"[col]
+        lo, hi = ax.travel
+        limits[program_axis] = (lo - q[0, i], hi - q[0, i])
+    return limits
+
+
+def post_layer(path: LayerPath, config: Config, hemi: Hemisphere, controller: str,
+               limits: dict[str, tuple[float, float]] | None = None) -> PlannedProgram:
     """Build, render and lint one layer program; raises :class:`LintError` on failure."""
     post = get_postprocessor(controller)
     built = build_program(path, config, hemi, controller, post.path_form, __version__)
     text = post.render(built.program)
     file = f"{controller}/{built.program.name}{post.extension}"
-    problems = post.lint(text, travel_limits(config))
+    problems = post.lint(text, limits if limits is not None else {})
     if problems:
         raise LintError(file, problems)
     return PlannedProgram(file, controller, path.layer, text, built)
 
 
-def plan(config: Config, on_step: Callable[[str], None] | None = None) -> PlanResult:
-    """Plan every layer and post it for every configured controller.
+def _infeasible_message(bad: list[tuple[str, PieceCheck]]) -> PlanError:
+    names = [c.piece_id for _, c in bad]
+    shown = ", ".join(names[:12]) + (f" and {len(names) - 12} more" if len(names) > 12 else "")
+    err = PlanError(f"{len(names)} infeasible piece(s): {shown}; pass --skip-infeasible to leave "
+                    f"them out (plan.json then says why)")
+    err.details = [f"layer {layer}, {c.piece_id}: {c.violations[0].describe()}" for layer, c in bad]
+    return err
 
-    ``on_step`` is called after each unit of work with a short description (the CLI
-    drives a progress bar with it); the total is :func:`step_count`.
+
+def plan(config: Config, on_step: Callable[[str], None] | None = None,
+         skip_infeasible: bool = False) -> PlanResult:
+    """Plan, check and post every layer for every configured controller.
+
+    Infeasible segments (travel, rotary rate, collision) raise :class:`PlanError`
+    naming all of them, unless ``skip_infeasible``: then each layer is planned again
+    without them.  ``on_step`` is called after each unit of work (see
+    :func:`step_count`).
     """
     hemi = partition(config)
+    kin = Kinematics(config.machine)
+    scene = Scene(config, kin)
     builder = PathBuilder(config, hemi)
-    paths, programs = [], []
+    layers, bad = [], []
     for layer in hemi.layers:
         path = builder.layer_path(layer)
-        check_travel(path, config)
-        paths.append(path)
+        poses, checks = check_layer(path, config, kin, scene)
+        infeasible = [c for c in checks if not c.feasible]
+        if infeasible and skip_infeasible:
+            excluded = frozenset(c.piece_id for c in infeasible)
+            path = builder.layer_path(layer, excluded)
+            poses, rechecked = check_layer(path, config, kin, scene)
+            still = [c for c in rechecked if not c.feasible]
+            if still:  # a shortened run can differ by nanometres; never let it through
+                bad += [(layer.name, c) for c in still]
+            checks = tuple(rechecked) + tuple(infeasible)
+        else:
+            bad += [(layer.name, c) for c in infeasible]
+        layers.append(LayerPlan(path, poses, checks))
         if on_step:
-            on_step(f"layer {layer.name} planned")
+            on_step(f"layer {layer.name} planned and checked")
+    if bad:
+        raise _infeasible_message(bad)
+    limits = lint_limits(config, kin)
+    programs = []
+    for lp in layers:
         for controller in config.post.controllers:
-            programs.append(post_layer(path, config, hemi, controller))
+            if lp.path.items:
+                programs.append(post_layer(lp.path, config, hemi, controller, limits))
             if on_step:
-                on_step(f"layer {layer.name} posted for {controller}")
-    return PlanResult(config, hemi, tuple(paths), tuple(programs))
+                on_step(f"layer {lp.path.layer} posted for {controller}")
+    return PlanResult(config, hemi, tuple(layers), tuple(programs))
 
 
 def step_count(config: Config) -> int:

@@ -76,7 +76,6 @@ def test_refuses_non_empty_dir_and_force_replaces(tmp_path):
     ("bar_length_mm", "0.0", 2, "ballbar.bar_length_mm: expected a value > 0"),
     ("controllers", '["fanuc31"]', 2, "known controllers: linuxcnc, sinumerik840d"),
     ("feed_mm_per_min", "0", 2, "test.feed_mm_per_min: expected a value > 0"),
-    ("pivot_mm", "[0.0, 0.0, 400.0]", 3, "leaves the Z travel by"),
 ])
 def test_bad_input_is_one_line_without_traceback(tmp_path, key, value, code, expected):
     cfg = tmp_path / "bad.toml"
@@ -94,9 +93,15 @@ def test_bad_input_is_one_line_without_traceback(tmp_path, key, value, code, exp
 def test_unreachable_plan_names_segment_axis_and_overshoot(tmp_path):
     cfg = tmp_path / "far.toml"
     cfg.write_text(edit(sample_path("vmc_3axis.toml").read_text(), "pivot_mm", "[300.0, 0.0, 50.0]"))
-    r = run("plan", str(cfg), "--out", str(tmp_path / "o"))
-    assert r.returncode == 3
-    assert "layer A, A1-1: the path leaves the X travel by 50.000 mm" in r.stderr
+    out = tmp_path / "o"
+    r = run("plan", str(cfg), "--out", str(out))
+    assert r.returncode == 3 and "Traceback" not in r.stderr
+    lines = r.stderr.splitlines()
+    assert lines[0].startswith("sdit-path: error: ") and "infeasible piece(s): A1-1" in lines[0]
+    assert "--skip-infeasible" in lines[0]
+    assert "  layer A, A1-1: X 450.000 mm exceeds its limit 400 mm by 50.000 mm at ball " \
+           "(450.000, 0.000, 50.000) mm" in lines
+    assert not out.exists()
 
 
 def test_unparseable_config_names_file_and_line(tmp_path):

@@ -23,7 +23,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import Config
-from ..errors import PlanError
 from .curves import MeridianCurve, WaveCurve
 from .hemisphere import TOP, Hemisphere, Layer
 from .nurbs import BSplineCurve, FittedRun, fit_run
@@ -43,7 +42,9 @@ class PathPiece:
 
 @dataclass(frozen=True, slots=True)
 class Run:
-    """Motion from one dwell to the next along one spline."""
+    """Motion along one spline, from a dwell (or a mounting point) to the next.
+    ``start_node``/``end_node`` are static node ids, or ``""`` where the run starts or
+    ends between segments (next to a segment left out)."""
 
     curve: BSplineCurve
     pieces: tuple[PathPiece, ...]
@@ -72,11 +73,24 @@ class Dwell:
 
 
 @dataclass(frozen=True, slots=True)
+class Remount:
+    """The bar comes off at ``from_mm``, the machine repositions through ``via_mm
+    (k, 3)`` (all outside the sphere), and the bar goes back on at ``to_mm``: what a
+    layer program does to step over segments it leaves out (``skipped``)."""
+
+    from_mm: np.ndarray
+    via_mm: np.ndarray
+    to_mm: np.ndarray
+    skipped: tuple[str, ...]
+
+
+@dataclass(frozen=True, slots=True)
 class LayerPath:
     layer: str
     start_node: str
     start_mm: np.ndarray
-    items: tuple[Run | Dwell, ...]
+    items: tuple[Run | Dwell | Remount, ...]
+    omitted: tuple[str, ...] = ()
 
     @property
     def runs(self) -> tuple[Run, ...]:
@@ -108,26 +122,47 @@ class PathBuilder:
         self._fit_kw = dict(degree=post.spline_degree, tolerance_mm=post.spline_tolerance_um * 1e-3,
                             decimals=post.decimals)
         self._meridian: dict[tuple[str, str], Run] = {}
+        self._runs: dict[tuple, Run] = {}
 
     # -- runs ---------------------------------------------------------------------------
 
-    def _fit(self, curves, start_node: str, end_node: str, ids, kinds, direction, label) -> Run:
+    def _fit(self, curves, start: str | np.ndarray, end: str | np.ndarray, ids, kinds,
+             direction, label) -> Run:
+        """Fit a run between two nodes (ids) or points (``(3,)`` arrays)."""
         h = self.hemi
-        fit = fit_run(curves, h.centre_mm, h.radius_mm, h.node(start_node).position_mm,
-                      h.node(end_node).position_mm, label=label, **self._fit_kw)
-        return _run_from_fit(fit, ids, kinds, start_node, end_node, direction)
+        a = h.node(start).position_mm if isinstance(start, str) else start
+        b = h.node(end).position_mm if isinstance(end, str) else end
+        fit = fit_run(curves, h.centre_mm, h.radius_mm, a, b, label=label, **self._fit_kw)
+        return _run_from_fit(fit, ids, kinds, start if isinstance(start, str) else "",
+                             end if isinstance(end, str) else "", direction)
 
-    def sector_run(self, layer: Layer, sector: int) -> Run:
+    def _wave(self, layer: Layer, seg) -> WaveCurve:
         h, t = self.hemi, self.config.test
         span = 2.0 * math.pi / h.nodes_per_track
-        curves = [WaveCurve(h.centre_mm, h.radius_mm, layer.lower_elevation_rad,
-                            layer.upper_elevation_rad, t.curve.amplitude, t.curve.waves_per_sector,
-                            span, t.projection, s.azimuth_start_rad, s.azimuth_end_rad)
-                  for s in layer.segments if s.sector == sector]
-        ids = [s.id for s in layer.segments if s.sector == sector]
-        start, end = layer.sector_nodes(sector, h.nodes_per_track)
-        return self._fit(curves, start, end, ids, ["segment"] * len(ids), "forward",
-                         f"segments {ids[0]}..{ids[-1]}")
+        return WaveCurve(h.centre_mm, h.radius_mm, layer.lower_elevation_rad,
+                         layer.upper_elevation_rad, t.curve.amplitude, t.curve.waves_per_sector,
+                         span, t.projection, seg.azimuth_start_rad, seg.azimuth_end_rad)
+
+    def segment_run(self, layer: Layer, segs: list) -> Run:
+        """One run over consecutive segments of one sector (the whole sector is cached)."""
+        h = self.hemi
+        sector = segs[0].sector
+        whole = [s for s in layer.segments if s.sector == sector]
+        key = (layer.name, tuple(s.id for s in segs))
+        if key in self._runs:
+            return self._runs[key]
+        curves = [self._wave(layer, s) for s in segs]
+        start_node, end_node = layer.sector_nodes(sector, h.nodes_per_track)
+        start = start_node if segs[0] is whole[0] else curves[0](np.array([0.0]))[0]
+        end = end_node if segs[-1] is whole[-1] else curves[-1](np.array([1.0]))[0]
+        ids = [s.id for s in segs]
+        run = self._fit(curves, start, end, ids, ["segment"] * len(ids), "forward",
+                        f"segments {ids[0]}..{ids[-1]}")
+        self._runs[key] = run
+        return run
+
+    def sector_run(self, layer: Layer, sector: int) -> Run:
+        return self.segment_run(layer, [s for s in layer.segments if s.sector == sector])
 
     def meridian_run(self, start_node: str, end_node: str) -> Run:
         """Transit along the 0 deg meridian between two nodes (fitted upwards once)."""
@@ -147,63 +182,105 @@ class PathBuilder:
         self._meridian[key] = run
         return run
 
+    def remount(self, a: np.ndarray, b: np.ndarray, skipped: tuple[str, ...],
+                standoff_mm: float = 30.0) -> Remount:
+        """Off the sphere from ``a`` to ``b``: out radially by ``standoff_mm``, up above
+        the hemisphere, across, down, and in radially; every via point lies outside the
+        sphere of radius R + standoff."""
+        h = self.hemi
+        c, r = h.centre_mm, h.radius_mm
+        out_a = c + (a - c) * (r + standoff_mm) / r
+        out_b = c + (b - c) * (r + standoff_mm) / r
+        z_safe = c[2] + r + 2 * standoff_mm
+        via = np.array([out_a, [out_a[0], out_a[1], z_safe], [out_b[0], out_b[1], z_safe], out_b])
+        return Remount(np.array(a), via, np.array(b), skipped)
+
     # -- layer paths ----------------------------------------------------------------------
 
-    def layer_path(self, layer: Layer) -> LayerPath:
+    def layer_path(self, layer: Layer, excluded: frozenset[str] = frozenset()) -> LayerPath:
+        """The layer program's path; segments and transits in ``excluded`` are left out
+        and stepped over with a remount of the bar."""
         h, t = self.hemi, self.config.test
-        n = h.nodes_per_track
-        dwell = t.dwell_s
-        items: list[Run | Dwell] = []
+        items: list[Run | Dwell | Remount] = []
 
         def stop(node_id: str) -> None:
-            items.append(Dwell(node_id, h.node(node_id).position_mm, dwell))
+            items.append(Dwell(node_id, h.node(node_id).position_mm, t.dwell_s))
+
+        def add(run: Run) -> None:
+            items.append(run)
+            if run.end_node:
+                stop(run.end_node)
+
+        def here() -> np.ndarray | None:
+            runs = [i for i in items if isinstance(i, Run)]
+            return runs[-1].curve.control_points_mm[-1] if runs else None
+
+        def go_to(run: Run, skipped: tuple[str, ...]) -> None:
+            """Remount to the start of ``run`` unless the machine is already there."""
+            a, b = here(), run.curve.control_points_mm[0]
+            if a is not None and np.linalg.norm(a - b) > 1e-9:
+                items.append(self.remount(a, b, skipped))
+                if run.start_node:
+                    stop(run.start_node)
+
+        # stretches of consecutive feasible segments (runs split at the nodes), and the
+        # ids left out before each stretch
+        stretches: list[list[list]] = []
+        gaps: list[tuple[str, ...]] = []
+        current: list[list] = []
+        gap: list[str] = []
+        for seg in layer.segments:
+            if seg.id in excluded:
+                if current:
+                    stretches.append(current)
+                    current = []
+                gap.append(seg.id)
+                continue
+            if not current:
+                gaps.append(tuple(gap))
+                gap = []
+            if current and current[-1][-1].sector == seg.sector:
+                current[-1].append(seg)
+            else:
+                current.append([seg])
+        if current:
+            stretches.append(current)
+        omitted = tuple(s.id for s in layer.segments if s.id in excluded)
+        if not stretches:
+            return LayerPath(layer.name, "", np.zeros(3), (), omitted)
+        forward = [[self.segment_run(layer, g) for g in st] for st in stretches]
+        backward = [[r.reversed("reverse") for r in reversed(st)] for st in reversed(forward)]
+        back_gaps = [()] + [tuple(reversed(g)) for g in reversed(gaps[1:])]
 
         first = f"{layer.lower_track}-1"
-        track_names = [tr.name for tr in h.tracks]
-        climb = track_names[: track_names.index(layer.lower_track) + 1]
-        start = f"{climb[0]}-1" if t.transit == "meridian" else first
-        stop(start)
-        if t.transit == "meridian":
-            for a, b in zip(climb, climb[1:]):
-                items.append(self.meridian_run(f"{a}-1", f"{b}-1"))
-                stop(f"{b}-1")
-        if layer.is_cap:
-            items.append(self.meridian_run(first, TOP))
-            stop(TOP)
-            items.append(self.meridian_run(TOP, first))
-            stop(first)
-        forward = [self.sector_run(layer, k) for k in range(1, n + 1)]
-        if "forward" in t.passes:
-            for run in forward:
-                items.append(run)
-                stop(run.end_node)
-        if "reverse" in t.passes:
-            for run in reversed(forward):
-                items.append(run.reversed("reverse"))
-                stop(run.start_node)
-        if t.transit == "meridian":
+        names = [tr.name for tr in h.tracks]
+        climb = names[: names.index(layer.lower_track) + 1]
+        lead = [self.meridian_run(f"{a}-1", f"{b}-1") for a, b in zip(climb, climb[1:])]
+        cap = [self.meridian_run(first, TOP), self.meridian_run(TOP, first)] if layer.is_cap else []
+        leaves_from_first = forward[0][0].start_node == first
+        use_lead = (t.transit == "meridian" and leaves_from_first
+                    and not any(r.pieces[0].id in excluded for r in lead))
+        use_cap = bool(cap) and leaves_from_first and not any(r.pieces[0].id in excluded for r in cap)
+        omitted += tuple(r.pieces[0].id for r in lead + cap if r.pieces[0].id in excluded)
+
+        passes = [(forward, gaps) if p == "forward" else (backward, back_gaps) for p in t.passes]
+        if use_lead:
+            start_node = f"{climb[0]}-1"
+        else:
+            first_run = passes[0][0][0][0]
+            start_node = first_run.start_node
+        start_mm = (h.node(start_node).position_mm if start_node
+                    else passes[0][0][0][0].curve.control_points_mm[0])
+        if start_node:
+            stop(start_node)
+        for run in (lead if use_lead else []) + (cap if use_cap else []):
+            add(run)
+        for stretch_runs, stretch_gaps in passes:
+            for runs, skipped in zip(stretch_runs, stretch_gaps):
+                go_to(runs[0], skipped)
+                for run in runs:
+                    add(run)
+        if use_lead and [i for i in items if isinstance(i, Run)][-1].end_node == first:
             for a, b in zip(climb[::-1], climb[::-1][1:]):
-                items.append(self.meridian_run(f"{a}-1", f"{b}-1"))
-                stop(f"{b}-1")
-        return LayerPath(layer.name, start, h.node(start).position_mm, tuple(items))
-
-
-def check_travel(path: LayerPath, config: Config) -> None:
-    """Every control point (hence the whole curve, by the convex hull) within travel."""
-    for run in path.runs:
-        q = run.curve.control_points_mm
-        for i, ax in enumerate(config.machine.axes):
-            lo, hi = ax.travel_mm
-            below, above = lo - q[:, i].min(), q[:, i].max() - hi
-            if below > 0 or above > 0:
-                over = max(below, above)
-                j = int(np.argmin(q[:, i]) if below > 0 else np.argmax(q[:, i]))
-                u = j / max(1, len(q) - 1) * (run.curve.domain[1] - run.curve.domain[0])
-                where = next((p.id for p in run.pieces if p.u_start <= u <= p.u_end),
-                             run.pieces[0].id)
-                side = "min" if below > 0 else "max"
-                limit = lo if below > 0 else hi
-                raise PlanError(
-                    f"layer {path.layer}, {where}: the path leaves the {ax.name} travel by "
-                    f"{over:.3f} mm ({ax.name}={q[j, i]:.3f} mm beyond the {side} {limit:g} mm of "
-                    f"machine.axes.{ax.name}.travel_mm); move ballbar.pivot_mm or shorten the bar")
+                add(self.meridian_run(f"{a}-1", f"{b}-1"))
+        return LayerPath(layer.name, start_node, np.array(start_mm), tuple(items), omitted)

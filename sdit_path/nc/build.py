@@ -11,9 +11,9 @@ from ..config import Config
 from ..geometry.hemisphere import Hemisphere
 from ..geometry.nurbs import round_to_decimals
 from ..geometry.paths import Dwell as PathDwell
-from ..geometry.paths import LayerPath, Run
+from ..geometry.paths import LayerPath, Remount, Run
 from .chords import chords_for_range
-from .program import Comment, Dwell, LinearMove, PolylineMove, Program, SplineMove
+from .program import Comment, Dwell, LinearMove, PolylineMove, Program, ProgramStop, SplineMove
 from .text import program_name
 
 
@@ -59,12 +59,23 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
     deviation: dict[str, float] = {}
     body: list = []
     start = round_to_decimals(path.start_mm, decimals)
-    body.append(Comment(f"start node {path.start_node}: mount the ballbar here"))
+    where = f"node {path.start_node}" if path.start_node else "the start point"
+    body.append(Comment(f"start at {where}: mount the ballbar here"))
     body.append(LinearMove(start, feed))
     current = start
     for item in path.items:
         if isinstance(item, PathDwell):
             body.append(Dwell(item.seconds, item.node_id))
+            continue
+        if isinstance(item, Remount):
+            skipped = ", ".join(item.skipped) if item.skipped else "none"
+            body.append(Comment(f"left out (infeasible, see plan.json): {skipped}"))
+            body.append(ProgramStop("remove the ballbar, then cycle start: the machine repositions"))
+            for p in item.via_mm:
+                body.append(LinearMove(round_to_decimals(p, decimals), feed))
+            body.append(LinearMove(round_to_decimals(item.to_mm, decimals), feed))
+            body.append(ProgramStop("mount the ballbar here, then cycle start"))
+            current = round_to_decimals(item.to_mm, decimals)
             continue
         if path_form == "spline":
             body.append(_spline_move(item, feed))
@@ -73,7 +84,8 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
             current = item.curve.control_points_mm[-1]
             continue
         points, labels = [], []
-        end_node = round_to_decimals(hemi.node(item.end_node).position_mm, decimals)
+        end_node = (round_to_decimals(hemi.node(item.end_node).position_mm, decimals)
+                    if item.end_node else item.curve.control_points_mm[-1])
         for k, piece in enumerate(item.pieces):
             last = k == len(item.pieces) - 1
             verts, dev = chords_for_range(
@@ -107,7 +119,9 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
         form,
         f"segments {layer.segments[0].id}..{layer.segments[-1].id}, passes "
         f"{' + '.join(test.passes)}, projection {test.projection}",
-        f"start and end: node {path.start_node}; every move stays on the sphere",
+        (f"start and end: node {path.start_node}; every move stays on the sphere"
+         if not path.omitted else
+         f"left out as infeasible: {', '.join(path.omitted)} (the bar is remounted around them)"),
     ) + ((post.comment,) if post.comment else ())
     program = Program(name=name, controller=controller, layer=path.layer, header=header,
                       work_offset=post.work_offset, decimals=decimals,

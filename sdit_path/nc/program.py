@@ -56,7 +56,14 @@ class Dwell:
     node_id: str
 
 
-Item = Comment | LinearMove | SplineMove | PolylineMove | Dwell
+@dataclass(frozen=True, slots=True)
+class ProgramStop:
+    """An unconditional stop for the operator (M0), with what to do."""
+
+    message: str
+
+
+Item = Comment | LinearMove | SplineMove | PolylineMove | Dwell | ProgramStop
 
 
 @dataclass(frozen=True, slots=True)

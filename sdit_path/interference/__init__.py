@@ -1,0 +1,1 @@
+"""Interference stage: the collision scene and the clearance check along the paths."""

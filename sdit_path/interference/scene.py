@@ -1,0 +1,204 @@
+"""The collision scene: machine parts from the config plus the ballbar itself.
+
+Every part hangs on a body of the kinematic chain (``bed`` or the body an axis moves)
+and is placed as it sits with every axis at 0, in the bed frame.  Primitives are exact
+python-fcl shapes; STL meshes are read with trimesh and become fcl BVH models.
+sdit-path adds three parts of its own: ``pivot_ball`` (on the table), ``tool_ball``
+(on the spindle) and ``bar``, the tube between the two ball surfaces, which is posed
+afresh for every pose.
+
+Checked pairs: every tool-side part against every workpiece-side part (parts on the
+same side move together and are the machine's own business), and the bar against
+every part but its two balls; minus ``scene.allowed_contacts``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import fcl
+import numpy as np
+
+from ..config import Config, ScenePart
+from ..errors import ConfigError
+from ..machine.kinematics import Kinematics
+
+
+def rotation_z_to(axis) -> np.ndarray:
+    """A rotation taking +Z to the unit vector ``axis``."""
+    a = np.asarray(axis, dtype=float)
+    a = a / np.linalg.norm(a)
+    z = np.array([0.0, 0.0, 1.0])
+    v = np.cross(z, a)
+    c = float(z @ a)
+    if np.linalg.norm(v) < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + k + k @ k * (1.0 / (1.0 + c))
+
+
+def rotations_z_to(axes: np.ndarray) -> np.ndarray:
+    """Vectorised :func:`rotation_z_to` for unit vectors ``(n, 3)`` -> ``(n, 3, 3)``."""
+    a = np.asarray(axes, dtype=float)
+    n = len(a)
+    c = a[:, 2]
+    k = np.zeros((n, 3, 3))
+    # v = z x a = (-a_y, a_x, 0)
+    k[:, 0, 2], k[:, 1, 2] = a[:, 0], a[:, 1]
+    k[:, 2, 0], k[:, 2, 1] = -a[:, 0], -a[:, 1]
+    flip = c < -1 + 1e-9
+    scale = np.where(flip, 0.0, 1.0 / np.where(flip, 1.0, 1.0 + c))
+    out = np.eye(3) + k + (k @ k) * scale[:, None, None]
+    out[flip] = np.diag([1.0, -1.0, -1.0])
+    return out
+
+
+@dataclass
+class Part:
+    """A posed collision object.  ``rot_home``/``pos_home`` place it in its body frame;
+    ``radius_mm`` bounds its points' distance from ``pos_home``."""
+
+    name: str
+    body: str
+    obj: fcl.CollisionObject
+    rot_home: np.ndarray
+    pos_home: np.ndarray
+    radius_mm: float
+    side: str  # "tool", "work" or "bar"
+    exact: bool  # signed distance available (primitives)
+
+
+def _geometry(part: ScenePart, base_dir: Path) -> tuple[object, float, bool]:
+    s = part.size_mm
+    if part.shape == "box":
+        return fcl.Box(*s), 0.5 * float(np.linalg.norm(s)), True
+    if part.shape == "cylinder":
+        return fcl.Cylinder(s[0], s[1]), float(np.hypot(s[0], s[1] / 2)), True
+    if part.shape == "capsule":
+        return fcl.Capsule(s[0], s[1]), s[0] + s[1] / 2, True
+    if part.shape == "sphere":
+        return fcl.Sphere(s[0]), s[0], True
+    import trimesh
+
+    path = (base_dir / part.mesh_file) if not Path(part.mesh_file).is_absolute() else Path(part.mesh_file)
+    try:
+        mesh = trimesh.load(path, force="mesh")
+    except Exception as exc:  # trimesh raises many kinds; name the file either way
+        raise ConfigError(f"{path}", f"scene part {part.name!r}: cannot read the mesh: {exc}") from None
+    if len(mesh.faces) == 0:
+        raise ConfigError(f"{path}", f"scene part {part.name!r}: the mesh has no faces")
+    bvh = fcl.BVHModel()
+    bvh.beginModel(len(mesh.vertices), len(mesh.faces))
+    bvh.addSubModel(np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int32))
+    bvh.endModel()
+    return bvh, float(np.linalg.norm(mesh.vertices, axis=1).max()), False
+
+
+class Scene:
+    """Parts, the pairs to check, and their clearance over many poses."""
+
+    def __init__(self, config: Config, kinematics: Kinematics):
+        self.kin = kinematics
+        m = config.machine
+        base_dir = Path(config.source).resolve().parent
+        table_body = m.workpiece_chain[-1] if m.workpiece_chain else "bed"
+        tool_body = m.tool_chain[-1] if m.tool_chain else "bed"
+        tool_side = set(m.tool_chain)
+        self.parts: list[Part] = []
+        for sp in config.scene.parts:
+            geom, radius, exact = _geometry(sp, base_dir)
+            rot = np.eye(3) if sp.shape == "mesh" else rotation_z_to(sp.axis)
+            pos = np.array(sp.position_mm, dtype=float)
+            if sp.shape == "mesh":  # mesh vertices are in the bed frame; position shifts them
+                radius += float(np.linalg.norm(pos))
+                pos_home = pos
+            else:
+                pos_home = pos
+            self.parts.append(Part(sp.name, sp.body, fcl.CollisionObject(geom, fcl.Transform()),
+                                   rot, pos_home, radius, "tool" if sp.body in tool_side else "work",
+                                   exact))
+        b = config.ballbar
+        r_ball = b.ball_diameter_mm / 2
+        self.parts.append(Part("pivot_ball", table_body, fcl.CollisionObject(fcl.Sphere(r_ball), fcl.Transform()),
+                               np.eye(3), np.array(b.pivot_mm), r_ball, "work", True))
+        self.parts.append(Part("tool_ball", tool_body, fcl.CollisionObject(fcl.Sphere(r_ball), fcl.Transform()),
+                               np.eye(3), kinematics.tip_mm.copy(), r_ball, "tool", True))
+        bar_len = b.bar_length_mm - b.ball_diameter_mm
+        self.parts.append(Part("bar", "bar", fcl.CollisionObject(fcl.Cylinder(b.bar_diameter_mm / 2, bar_len),
+                                                                  fcl.Transform()),
+                               np.eye(3), np.zeros(3), float(np.hypot(b.bar_diameter_mm / 2, bar_len / 2)),
+                               "bar", True))
+        self.pivot_mm = np.array(b.pivot_mm)
+        self.ball_radius_mm = r_ball
+        self._bar_len = bar_len
+        allowed = {frozenset(p) for p in config.scene.allowed_contacts}
+        names = [p.name for p in self.parts]
+        self.pairs: list[tuple[int, int]] = []
+        for i, a in enumerate(self.parts):
+            for j in range(i + 1, len(self.parts)):
+                c = self.parts[j]
+                if frozenset((a.name, c.name)) in allowed:
+                    continue
+                sides = {a.side, c.side}
+                if sides == {"tool", "work"}:
+                    self.pairs.append((i, j))
+                elif "bar" in sides and len(sides) == 2:
+                    other = c if a.side == "bar" else a
+                    if other.name not in ("pivot_ball", "tool_ball"):
+                        self.pairs.append((i, j))
+        self.pair_names = [(names[i], names[j]) for i, j in self.pairs]
+        self._req = fcl.DistanceRequest(enable_signed_distance=True)
+
+    # ------------------------------------------------------------------ posing
+
+    def part_poses(self, q: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """World rotation ``(n, 3, 3)`` and position ``(n, 3)`` of every part."""
+        bodies = self.kin.body_transforms(q)
+        out = []
+        for p in self.parts:
+            if p.body == "bar":
+                rot_w, trans_w = self.kin.table_transform(q)
+                pivot = np.einsum("nij,j->ni", rot_w, self.pivot_mm) + trans_w
+                ball = self.kin.tool_ball_bed(q)
+                d = ball - pivot
+                d = d / np.linalg.norm(d, axis=1)[:, None]
+                out.append((rotations_z_to(d), 0.5 * (pivot + ball)))
+                continue
+            rot_b, trans_b = bodies[p.body]
+            out.append((rot_b @ p.rot_home, np.einsum("nij,j->ni", rot_b, p.pos_home) + trans_b))
+        return out
+
+    def clearances(self, q: np.ndarray) -> np.ndarray:
+        """Distance ``(n, n_pairs)`` in mm for every pose and checked pair; zero or
+        negative is a collision (signed for primitives, -1 for a mesh overlap)."""
+        q = np.atleast_2d(q)
+        poses = self.part_poses(q)
+        n = len(q)
+        out = np.empty((n, len(self.pairs)))
+        moving = [k for k, p in enumerate(self.parts) if p.body != "bed"]
+        static = [k for k, p in enumerate(self.parts) if p.body == "bed"]
+        for k in static:
+            rot, pos = poses[k]
+            self.parts[k].obj.setTransform(fcl.Transform(rot[0], pos[0]))
+        objs = [p.obj for p in self.parts]
+        req = self._req
+        for i in range(n):
+            for k in moving:
+                rot, pos = poses[k]
+                objs[k].setTransform(fcl.Transform(rot[i], pos[i]))
+            for c, (a, b) in enumerate(self.pairs):
+                out[i, c] = fcl.distance(objs[a], objs[b], req, fcl.DistanceResult())
+        return out
+
+    def nearest_points(self, q: np.ndarray, pair: int) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest (or deepest) points, bed frame, of ``pair`` at one pose ``q``."""
+        poses = self.part_poses(np.atleast_2d(q))
+        a, b = self.pairs[pair]
+        for k in (a, b):
+            rot, pos = poses[k]
+            self.parts[k].obj.setTransform(fcl.Transform(rot[0], pos[0]))
+        res = fcl.DistanceResult()
+        fcl.distance(self.parts[a].obj, self.parts[b].obj,
+                     fcl.DistanceRequest(enable_nearest_points=True, enable_signed_distance=True), res)
+        return np.array(res.nearest_points[0]), np.array(res.nearest_points[1])

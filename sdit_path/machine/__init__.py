@@ -1,0 +1,1 @@
+"""Machine stage: kinematics, rotary schedules, poses along the paths, reachability."""

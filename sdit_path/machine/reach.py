@@ -1,0 +1,96 @@
+"""Reachability: every pose within travel and angle limits (with margins), and rotary
+rates the axes can follow at the programmed feed (near a singularity of the schedule,
+where the bar passes close to the turn axis, the turn axis would have to spin).
+
+Results are values, one per piece (segment or transit), never exceptions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..config import Config
+from .kinematics import Kinematics
+from .poses import RunPoses
+
+
+@dataclass(frozen=True, slots=True)
+class Violation:
+    """Something that makes a piece infeasible.  ``kind``: ``travel``,
+    ``rotary_rate`` or ``collision``.  Values are in the unit users read (mm, deg,
+    deg/s); ``point_mm`` is the ball centre (table frame) where it is worst."""
+
+    kind: str
+    subject: str
+    value: float
+    limit: float
+    overshoot: float
+    unit: str
+    point_mm: tuple[float, float, float]
+    detail: str = ""
+
+    def describe(self) -> str:
+        at = "(" + ", ".join(f"{v:.3f}" for v in self.point_mm) + ") mm"
+        if self.kind == "travel":
+            return (f"{self.subject} {self.value:.3f} {self.unit} exceeds its limit {self.limit:g} "
+                    f"{self.unit} by {self.overshoot:.3f} {self.unit} at ball {at}")
+        if self.kind == "rotary_rate":
+            return (f"{self.subject} would turn at {self.value:.1f} {self.unit}, over its limit "
+                    f"{self.limit:g} {self.unit} (near a singularity) at ball {at}")
+        return (f"collision {self.subject}: clearance {self.value:.3f} mm < {self.limit:g} mm "
+                f"safety at ball {at}{self.detail}")
+
+
+@dataclass(frozen=True, slots=True)
+class PieceCheck:
+    """Verdict for one piece (segment id or transit id) of one layer path."""
+
+    piece_id: str
+    kind: str
+    violations: tuple[Violation, ...]
+    min_clearance_mm: float | None = None
+    clearance_pair: tuple[str, str] | None = None
+    clearance_point_mm: tuple[float, float, float] | None = None
+
+    @property
+    def feasible(self) -> bool:
+        return not self.violations
+
+
+def _point(p) -> tuple[float, float, float]:
+    return tuple(round(float(x), 6) for x in p)
+
+
+def reach_violations(poses: RunPoses, config: Config, kin: Kinematics) -> dict[int, list[Violation]]:
+    """Travel, angle and rotary-rate violations per piece index of one run."""
+    out: dict[int, list[Violation]] = {}
+    margin_lin = config.check.travel_margin_mm
+    margin_rot = config.check.angle_margin_rad
+    feed = config.test.feed_mm_per_min / 60.0
+    q, pts, piece = poses.q, poses.points_mm, poses.piece
+    ds = np.diff(poses.s_mm)
+    for j, ax in enumerate(kin.axes):
+        m = margin_rot if ax.is_rotary else margin_lin
+        lo, hi = ax.travel[0] + m, ax.travel[1] - m
+        for k in np.unique(piece):
+            sel = np.where(piece == k)[0]
+            v = q[sel, j]
+            i_lo, i_hi = int(np.argmin(v)), int(np.argmax(v))
+            for idx, over, limit in ((i_lo, lo - v[i_lo], lo), (i_hi, v[i_hi] - hi, hi)):
+                if over > 1e-12:
+                    out.setdefault(int(k), []).append(Violation(
+                        "travel", ax.name, ax.to_display(v[idx]), ax.to_display(limit),
+                        ax.to_display(over), ax.unit, _point(pts[sel[idx]]),
+                        f" (margin {ax.to_display(m):g} {ax.unit})" if m else ""))
+        if ax.is_rotary and len(ds):
+            rate = np.abs(np.diff(q[:, j])) / np.maximum(ds, 1e-12) * feed
+            over = rate > ax.max_velocity * (1 + 1e-9)
+            for k in np.unique(piece[1:][over]):
+                sel = np.where(over & (piece[1:] == k))[0]
+                w = sel[int(np.argmax(rate[sel]))]
+                out.setdefault(int(k), []).append(Violation(
+                    "rotary_rate", ax.name, np.degrees(rate[w]), np.degrees(ax.max_velocity),
+                    np.degrees(rate[w] - ax.max_velocity), "deg/s", _point(pts[w + 1])))
+    return out
