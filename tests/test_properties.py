@@ -19,6 +19,8 @@ SEEDS = range(8)
 def random_config(seed: int):
     rng = np.random.default_rng(seed)
     text = sample_path("vmc_3axis.toml").read_text()
+    # fidelity only: no collision scene (its parts sit where the default pivot is)
+    text = text[: text.index("[[scene.parts]]")] + text[text.index("[post]"):]
     length = float(rng.uniform(50, 600))
     pivot = [float(rng.uniform(-200, 200)), float(rng.uniform(-100, 100)), float(rng.uniform(-50, 80))]
     n_tracks = int(rng.integers(2, 6))

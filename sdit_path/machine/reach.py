@@ -39,8 +39,8 @@ class Violation:
         if self.kind == "rotary_rate":
             return (f"{self.subject} would turn at {self.value:.1f} {self.unit}, over its limit "
                     f"{self.limit:g} {self.unit} (near a singularity) at ball {at}")
-        return (f"collision {self.subject}: clearance {self.value:.3f} mm < {self.limit:g} mm "
-                f"safety at ball {at}{self.detail}")
+        return (f"collision {self.subject}: clearance {round(self.value, 3) + 0.0:.3f} mm < "
+                f"{self.limit:g} mm safety at ball {at}{self.detail}")
 
 
 @dataclass(frozen=True, slots=True)

@@ -37,6 +37,19 @@ def manifest(result: PlanResult) -> dict:
             for p in run.pieces:
                 lengths[p.id] = p.length_mm
                 kinds[p.id] = p.kind
+    checks = {c.piece_id: c for la in result.layers for c in la.checks}
+    omitted = {pid for la in result.layers for pid in la.path.omitted}
+
+    def check_entry(pid: str) -> dict:
+        c = checks.get(pid)
+        if c is None:
+            return {}
+        out = {"feasible": c.feasible, "violations": [v.describe() for v in c.violations]}
+        if c.min_clearance_mm is not None:
+            out["min_clearance_mm"] = round(c.min_clearance_mm, 4) + 0.0
+            out["clearance_pair"] = list(c.clearance_pair)
+            out["clearance_at_ball_mm"] = list(c.clearance_point_mm)
+        return out
 
     def deviation_um(piece: str) -> dict[str, float]:
         return {c: round(dev[piece][c] * 1e3, 6) for c in controllers if c in dev.get(piece, {})}
@@ -48,18 +61,24 @@ def manifest(result: PlanResult) -> dict:
                 "id": s.id, "layer": s.layer, "sector": s.sector, "subsegment": s.subsegment,
                 "azimuth_deg": [_deg(s.azimuth_start_rad), _deg(s.azimuth_end_rad)],
                 "elevation_deg": [_deg(s.lower_elevation_rad), _deg(s.upper_elevation_rad)],
-                "length_mm": round(lengths[s.id], 6),
+                "status": "omitted" if s.id in omitted else "planned",
+                "length_mm": round(lengths[s.id], 6) if s.id in lengths else None,
                 "feed_mm_per_min": cfg.test.feed_mm_per_min,
                 "max_radial_deviation_um": deviation_um(s.id),
+                "check": check_entry(s.id),
             })
-    transits = [{"id": pid, "length_mm": round(lengths[pid], 6),
+    transit_ids = sorted({k for k, v in kinds.items() if v == "transit"} |
+                         {c.piece_id for c in checks.values() if c.kind == "transit"})
+    transits = [{"id": pid, "status": "omitted" if pid in omitted else "planned",
+                 "length_mm": round(lengths[pid], 6) if pid in lengths else None,
                  "feed_mm_per_min": cfg.test.feed_mm_per_min,
-                 "max_radial_deviation_um": deviation_um(pid)}
-                for pid in sorted(k for k, v in kinds.items() if v == "transit")]
+                 "max_radial_deviation_um": deviation_um(pid), "check": check_entry(pid)}
+                for pid in transit_ids]
     programs = []
     for prog in result.programs:
         path = next(p for p in result.paths if p.layer == prog.layer)
         text = prog.text
+        dwelled = [d.node_id for d in path.dwells]
         programs.append({
             "file": prog.file, "controller": prog.controller, "layer": prog.layer,
             "name": prog.built.program.name,
@@ -67,7 +86,8 @@ def manifest(result: PlanResult) -> dict:
                       "units": "mm"},
             "start_node": path.start_node,
             "segment_order": list(path.segment_order()),
-            "dwell_nodes": [d.node_id for d in path.dwells],
+            "dwell_nodes": dwelled,
+            "remounts": sum(1 for i in path.items if type(i).__name__ == "Remount"),
             "blocks": count_blocks(text),
             "path_length_mm": round(sum(r.length_mm for r in path.runs), 6),
             "max_radial_deviation_um": round(prog.built.max_deviation_mm * 1e3, 6),
@@ -101,8 +121,9 @@ def manifest(result: PlanResult) -> dict:
                    "dwell_s": cfg.test.dwell_s} for n in hemi.nodes],
         "layers": [{"name": la.name, "lower_track": la.lower_track, "upper_track": la.upper_track,
                     "elevation_deg": [_deg(la.lower_elevation_rad), _deg(la.upper_elevation_rad)],
-                    "is_cap": la.is_cap, "segments": [s.id for s in la.segments]}
-                   for la in hemi.layers],
+                    "is_cap": la.is_cap, "segments": [s.id for s in la.segments],
+                    "omitted": list(lp.path.omitted), "programmed": bool(lp.path.items)}
+                   for la, lp in zip(hemi.layers, result.layers)],
         "segments": segments,
         "transits": transits,
         "programs": programs,
