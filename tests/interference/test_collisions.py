@@ -23,7 +23,7 @@ def test_default_sample_is_clear_with_the_expected_tightest_pair(default_plan):
     worst = min(cl)
     # the horizontal bar's end disc (radius 6) passes 4 mm under the tool holder,
     # which starts 10 mm above the ball centre
-    assert worst[0] == pytest.approx(10.0 - 6.0, abs=1e-6)
+    assert 4.0 - 0.01 <= worst[0] <= 4.0
     # ... and as far above the pivot stand's top (40 mm) when horizontal: a tie
     assert set(worst[1]) in ({"bar", "tool_holder"}, {"bar", "pivot_stand"})
 
@@ -35,10 +35,13 @@ def test_clearance_is_exact_for_a_known_pose(default_config):
     scene = Scene(default_config, kin)
     q = kin.inverse(np.array([[0.0, 0.0, 200.0]]), {})
     d = {frozenset(k): v for k, v in zip(scene.pair_names, scene.clearances(q)[0])}
-    # fcl's GJK answers sphere-box to ~1e-3 mm; primitives of one kind are exact
-    assert d[frozenset(("tool_ball", "table"))] == pytest.approx(200 - 6.35, abs=1e-3)
-    assert d[frozenset(("tool_holder", "pivot_stand"))] == pytest.approx(210 - 40, abs=1e-6)
-    assert d[frozenset(("bar", "pivot_stand"))] == pytest.approx(50 - 6.35 - 40, abs=1e-6)
+    # conservative (never above the truth) and within 10 um of it; the coaxial
+    # holder/stand pair is the alignment that plain fcl gets wrong by 1.17 mm
+    for pair, truth in ((("tool_ball", "table"), 200 - 6.35),
+                        (("tool_holder", "pivot_stand"), 210 - 40),
+                        (("bar", "pivot_stand"), 200 - 6.35 - 137.3 - 40)):
+        got = d[frozenset(pair)]
+        assert truth - 0.01 <= got <= truth, (pair, got, truth)
     assert frozenset(("bar", "pivot_ball")) not in d and frozenset(("pivot_stand", "table")) not in d
 
 
