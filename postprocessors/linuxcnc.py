@@ -15,7 +15,7 @@ import re
 from sdit_path.nc.program import (Comment, Dwell, LinearMove, PolylineMove, Program,
                                   ProgramStop, SplineMove)
 from sdit_path.nc.text import neutralise
-from sdit_path.nc.words import frame, trimmed, words, xyz
+from sdit_path.nc.words import fixed, frame, trimmed, words, xyz
 
 _SPECIAL = re.compile(r"^\s*(msg|debug|print|log|probe|abort)", re.IGNORECASE)
 _OFFSETS = {"G54", "G55", "G56", "G57", "G58", "G59"}
@@ -43,16 +43,26 @@ class LinuxCNC:
             if isinstance(item, Comment):
                 body.append(f"({_comment(item.text)})")
             elif isinstance(item, LinearMove):
-                body.append(f"G1 {xyz(item.point_mm, d)} F{trimmed(item.feed_mm_per_min, 3)}")
+                rot = "".join(f" {n}{fixed(v, d)}" for n, v in item.rotary_deg)
+                body.append(f"G1 {xyz(item.point_mm, d)}{rot} F{trimmed(item.feed_mm_per_min, 3)}")
             elif isinstance(item, Dwell):
                 body.append(f"(dwell at node {_comment(item.node_id)})")
                 body.append(f"G4 P{trimmed(item.seconds, 3)}")
             elif isinstance(item, PolylineMove):
                 labels = dict(item.labels)
+                inverse = item.inverse_time_per_min
+                if inverse is not None:
+                    body.append("(inverse time: every block's F is 1/minutes)")
+                    body.append("G93")
                 for j, p in enumerate(item.points_mm):
                     if j in labels:
                         body.append(f"({_comment(labels[j])})")
-                    body.append(f"G1 {xyz(p, d)}" if j == 0 else xyz(p, d))
+                    line = xyz(p, d) + "".join(f" {n}{fixed(v[j], d)}" for n, v in item.rotary_deg)
+                    if inverse is not None:
+                        line += f" F{fixed(inverse[j], 4)}"
+                    body.append(f"G1 {line}" if j == 0 else line)
+                if inverse is not None:
+                    body.append("G94")
             elif isinstance(item, ProgramStop):
                 body.append(f"(STOP: {_comment(item.message)})")
                 body.append("M0")
@@ -75,6 +85,7 @@ class LinuxCNC:
             lines = lines[:-1]
         last_code = ""
         seen_g21 = seen_g94 = False
+        inverse_time = False
         for lineno, raw in enumerate(lines, start=1):
             if any(ord(ch) < 32 or ord(ch) > 126 for ch in raw):
                 problems.append(f"line {lineno}: control or non-ASCII character")
@@ -133,6 +144,12 @@ class LinuxCNC:
                 seen_g21 = True
             if 94.0 in gnums:
                 seen_g94 = True
+            if 93.0 in gnums:
+                inverse_time = True
+            if 94.0 in gnums:
+                inverse_time = False
+            if inverse_time and any(a in values for a in "XYZABC") and "F" not in values:
+                problems.append(f"line {lineno}: a move under G93 (inverse time) needs its F word")
             if 20.0 in gnums:
                 problems.append(f"line {lineno}: G20 (inch) found; programs are metric (G21)")
             if any(g in (5.1, 5.2, 5.3) for g in gnums):

@@ -17,11 +17,11 @@ import math
 from sdit_path.nc.program import (Comment, Dwell, LinearMove, PolylineMove, Program,
                                   ProgramStop, SplineMove)
 from sdit_path.nc.text import neutralise
-from sdit_path.nc.words import frame, trimmed, words, xyz
+from sdit_path.nc.words import fixed, frame, trimmed, words, xyz
 
 MAX_BLOCK_CHARS = 512
 _KEYWORDS = {"BSPLINE", "ASPLINE", "CSPLINE", "CIP", "CT", "POLY", "TRAORI", "TRAFOOF",
-             "ORIWKS", "ORIAXES", "ORIMKS"}
+             "ORIWKS", "ORIAXES", "ORIMKS", "ORIVECT"}
 _MOTION = {"G0", "G00", "G1", "G01", "G2", "G02", "G3", "G03", "CIP", "CT", "ASPLINE",
            "CSPLINE", "POLY", "BSPLINE"}
 
@@ -43,7 +43,8 @@ class Sinumerik840D:
             if isinstance(item, Comment):
                 body.append(f"; {neutralise(item.text)}")
             elif isinstance(item, LinearMove):
-                body.append(f"G1 {xyz(item.point_mm, d)} F{trimmed(item.feed_mm_per_min, 3)}")
+                rot = "".join(f" {n}{fixed(v, d)}" for n, v in item.rotary_deg)
+                body.append(f"G1 {xyz(item.point_mm, d)}{rot} F{trimmed(item.feed_mm_per_min, 3)}")
             elif isinstance(item, Dwell):
                 body.append(f"; dwell at node {neutralise(item.node_id)}")
                 body.append(f"G4 F{trimmed(item.seconds, 3)}")
@@ -55,9 +56,13 @@ class Sinumerik840D:
             elif isinstance(item, PolylineMove):
                 raise TypeError("SINUMERIK 840D programs carry splines, not chords")
         preamble = [f"G17 G90 G71 G94 G40 {program.work_offset}", "M5"]
+        footer = []
+        if program.frame == "traori":
+            preamble += ["TRAORI", "ORIWKS", "ORIAXES"]
+            footer.append("TRAFOOF")
         header = [neutralise(line) for line in program.header]
         return frame("sinumerik840d/program.mpf.j2", name=program.name, header=header,
-                     preamble=preamble, body=body)
+                     preamble=preamble, body=body, footer=footer)
 
     @staticmethod
     def _spline(move: SplineMove, d: int) -> list[str]:
@@ -69,6 +74,7 @@ class Sinumerik840D:
             if j in labels:
                 out.append(f"; {neutralise(labels[j])}")
             words_ = xyz(curve.control_points_mm[j], d)
+            words_ += "".join(f" {n}{fixed(v[j], d)}" for n, v in move.rotary_deg)
             if curve.weights is not None:
                 words_ += f" PW={curve.weights[j]:.4f}"
             if j == 1:
@@ -91,6 +97,7 @@ class Sinumerik840D:
         run_start = 0
         pls: set[str] = set()
         seen_g94 = seen_g71 = False
+        traori_line = 0
         last_code = ""
 
         def close_run(lineno: int) -> None:
@@ -143,6 +150,15 @@ class Sinumerik840D:
                 if in_spline:
                     run.append(False)
                 continue
+            if "TRAORI" in addresses:
+                traori_line = lineno
+            if "TRAFOOF" in addresses:
+                if not traori_line:
+                    problems.append(f"line {lineno}: TRAFOOF without TRAORI")
+                traori_line = 0
+            if "M30" in addresses and traori_line:
+                problems.append(f"line {lineno}: TRAORI (line {traori_line}) still active at M30; "
+                                f"switch it off with TRAFOOF")
             motion = [a for a in addresses if a in _MOTION]
             if "BSPLINE" in motion:
                 if in_spline:

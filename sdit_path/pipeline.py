@@ -87,38 +87,38 @@ def check_layer(path: LayerPath, config: Config, kin: Kinematics, scene: Scene
     return poses, tuple(checks)
 
 
-def lint_limits(config: Config, kin: Kinematics) -> dict[str, tuple[float, float]]:
-    """Travel limits to lint the programmed words against, in the programmed frame.
-
-    Programs of a machine whose rotary axes are locked are written in the table frame,
-    which is then a pure translation of the linear axes (when it is): the limits are
-    shifted into it.  Otherwise the exact check is the kinematic one, upstream."""
-    if config.test.rotary.schedule != "locked":
-        return {}
+def lint_limits(config: Config, kin: Kinematics, frame: str) -> dict[str, tuple[float, float]]:
+    """Travel limits to lint the programmed words against, in the programmed frame
+    (mm and deg): every axis for machine-axis programs; the rotary axes under TRAORI;
+    for table-frame programs the linear limits too, shifted into the table frame when
+    it is a pure translation of the machine axes (the exact check is the kinematic
+    one, upstream)."""
+    limits = {ax.name: tuple(ax.to_display(v) for v in ax.travel) for ax in kin.axes
+              if ax.is_rotary}
+    if frame == "machine":
+        return {ax.name: tuple(ax.to_display(v) for v in ax.travel) for ax in kin.axes}
+    if frame == "traori":
+        return limits
     probe = np.vstack([np.zeros(3), np.eye(3)])
     angles = {n: np.full(4, v) for n, v in config.test.rotary.locked_rad}
     q = kin.inverse(probe, angles)
     lin = list(kin.linear)
-    jac = q[1:, lin] - q[0, lin]
-    if not np.allclose(np.abs(jac), np.eye(3), atol=1e-12) or not np.allclose(jac, np.eye(3)):
-        return {}
-    limits = {}
+    if not np.allclose(q[1:, lin] - q[0, lin], np.eye(3), atol=1e-12):
+        return limits
     for col, i in enumerate(lin):
-        ax = kin.axes[i]
-        program_axis = "XYZ"[col]
-        lo, hi = ax.travel
-        limits[program_axis] = (lo - q[0, i], hi - q[0, i])
+        lo, hi = kin.axes[i].travel
+        limits["XYZ"[col]] = (lo - q[0, i], hi - q[0, i])
     return limits
 
 
-def post_layer(path: LayerPath, config: Config, hemi: Hemisphere, controller: str,
-               limits: dict[str, tuple[float, float]] | None = None) -> PlannedProgram:
+def post_layer(path: LayerPath, config: Config, hemi: Hemisphere,
+               controller: str) -> PlannedProgram:
     """Build, render and lint one layer program; raises :class:`LintError` on failure."""
     post = get_postprocessor(controller)
     built = build_program(path, config, hemi, controller, post.path_form, __version__)
     text = post.render(built.program)
     file = f"{controller}/{built.program.name}{post.extension}"
-    problems = post.lint(text, limits if limits is not None else {})
+    problems = post.lint(text, lint_limits(config, Kinematics(config.machine), built.program.frame))
     if problems:
         raise LintError(file, problems)
     return PlannedProgram(file, controller, path.layer, text, built)
@@ -166,12 +166,11 @@ def plan(config: Config, on_step: Callable[[str], None] | None = None,
             on_step(f"layer {layer.name} planned and checked")
     if bad:
         raise _infeasible_message(bad)
-    limits = lint_limits(config, kin)
     programs = []
     for lp in layers:
         for controller in config.post.controllers:
             if lp.path.items:
-                programs.append(post_layer(lp.path, config, hemi, controller, limits))
+                programs.append(post_layer(lp.path, config, hemi, controller))
             if on_step:
                 on_step(f"layer {lp.path.layer} posted for {controller}")
     return PlanResult(config, hemi, tuple(layers), tuple(programs))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import PurePath
 
@@ -11,8 +12,12 @@ from ..config import Config
 from ..geometry.hemisphere import Hemisphere
 from ..geometry.nurbs import round_to_decimals
 from ..geometry.paths import Dwell as PathDwell
+from ..geometry.nurbs import BSplineCurve
 from ..geometry.paths import LayerPath, Remount, Run
+from ..machine.kinematics import Kinematics
+from ..machine.schedule import RotarySchedule
 from .chords import chords_for_range
+from .five_axis import AxisTrack, round_axis_values, machine_chords, machine_spline, rotary_controls
 from .program import Comment, Dwell, LinearMove, PolylineMove, Program, ProgramStop, SplineMove
 from .text import program_name
 
@@ -36,16 +41,24 @@ def greville(knots: np.ndarray, degree: int) -> np.ndarray:
     return np.array([knots[j + 1: j + degree + 1].mean() for j in range(n)])
 
 
-def _spline_move(run: Run, feed: float) -> SplineMove:
-    curve = run.curve
+def _labels(curve: BSplineCurve, run: Run) -> tuple[tuple[int, str], ...]:
     g = greville(curve.knots, curve.degree)
-    labels = []
-    for piece in run.pieces:
-        j = int(np.searchsorted(g, piece.u_start - 1e-9))
-        labels.append((max(1, j), piece.id))
+    return tuple((max(1, int(np.searchsorted(g, piece.u_start - 1e-9))), piece.id)
+                 for piece in run.pieces)
+
+
+def _knot_interval(curve: BSplineCurve, run: Run) -> float:
     intervals = len(curve.interval_knots) - 1
-    knot_interval = max(round(run.length_mm / intervals, 3), 0.001)
-    return SplineMove(curve, feed, knot_interval, tuple(labels))
+    return max(round(run.length_mm / intervals, 3), 0.001)
+
+
+def program_frame(config: Config, path_form: str) -> str:
+    """``table``, ``traori`` or ``machine``: see :class:`~sdit_path.nc.program.Program`."""
+    if config.test.rotary.schedule != "moving":
+        return "table"
+    if path_form == "spline" and config.post.five_axis_mode == "traori":
+        return "traori"
+    return "machine"
 
 
 def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller: str,
@@ -55,14 +68,41 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
     post, test = config.post, config.test
     decimals = post.decimals
     feed = test.feed_mm_per_min
+    frame = program_frame(config, path_form)
+    kin = Kinematics(config.machine)
+    track = AxisTrack(kin, RotarySchedule(config, kin))
+    rot_names = tuple(kin.names[i] for i in kin.rotary)
+    lin = list(kin.linear)
+    locked = tuple((n, round(math.degrees(v), decimals) + 0.0) for n, v in test.rotary.locked_rad)
+    spline_tol = post.spline_tolerance_um * 1e-3
+    chord_tol = post.chord_tolerance_um * 1e-3
     name = program_name(post.program_prefix, path.layer)
     deviation: dict[str, float] = {}
     body: list = []
-    start = round_to_decimals(path.start_mm, decimals)
+    carry = None
+
+    def words(p_table: np.ndarray, carry_in):
+        """A point of the table frame as program words: (xyz, rotary words, carry)."""
+        if frame == "table":
+            return round_to_decimals(p_table, decimals), locked, carry_in
+        q, carry_out = track.q(np.asarray(p_table)[None, :], carry_in)
+        rot = tuple((n, round(math.degrees(q[0, kin.index[n]]), decimals) + 0.0) for n in rot_names)
+        xyz = p_table if frame == "traori" else q[0, lin]
+        return round_to_decimals(xyz, decimals), rot, carry_out
+
+    def note(run: Run, devs) -> None:
+        for piece, d in zip(run.pieces, devs):
+            deviation[piece.id] = max(deviation.get(piece.id, 0.0), d)
+
     where = f"node {path.start_node}" if path.start_node else "the start point"
     body.append(Comment(f"start at {where}: mount the ballbar here"))
-    body.append(LinearMove(start, feed))
-    current = start
+    xyz, rot, carry = words(path.start_mm, carry)
+    body.append(LinearMove(xyz, feed, rot))
+    current_table = round_to_decimals(path.start_mm, decimals)
+    current_q = None
+    if frame == "machine":
+        current_q = kin.inverse(current_table[None, :], track.angles(current_table[None, :], None)[0])[0]
+        current_q = round_axis_values(current_q, kin, decimals)
     for item in path.items:
         if isinstance(item, PathDwell):
             body.append(Dwell(item.seconds, item.node_id))
@@ -71,36 +111,71 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
             skipped = ", ".join(item.skipped) if item.skipped else "none"
             body.append(Comment(f"left out (infeasible, see plan.json): {skipped}"))
             body.append(ProgramStop("remove the ballbar, then cycle start: the machine repositions"))
-            for p in item.via_mm:
-                body.append(LinearMove(round_to_decimals(p, decimals), feed))
-            body.append(LinearMove(round_to_decimals(item.to_mm, decimals), feed))
+            target_carry = track.angles(item.to_mm[None, :], carry)[1] if frame != "table" else carry
+            for k, p in enumerate(list(item.via_mm) + [item.to_mm]):
+                xyz, rot, _ = words(p, carry if k == 0 else target_carry)
+                body.append(LinearMove(xyz, feed, rot))
+            carry = target_carry
             body.append(ProgramStop("mount the ballbar here, then cycle start"))
-            current = round_to_decimals(item.to_mm, decimals)
+            current_table = round_to_decimals(item.to_mm, decimals)
+            if frame == "machine":
+                current_q = round_axis_values(kin.inverse(current_table[None, :],
+                                                 track.angles(current_table[None, :], carry)[0])[0],
+                                     kin, decimals)
             continue
-        if path_form == "spline":
-            body.append(_spline_move(item, feed))
-            for piece in item.pieces:
-                deviation[piece.id] = max(deviation.get(piece.id, 0.0), piece.max_radial_deviation_mm)
-            current = item.curve.control_points_mm[-1]
-            continue
-        points, labels = [], []
-        end_node = (round_to_decimals(hemi.node(item.end_node).position_mm, decimals)
-                    if item.end_node else item.curve.control_points_mm[-1])
-        for k, piece in enumerate(item.pieces):
-            last = k == len(item.pieces) - 1
-            verts, dev = chords_for_range(
-                item.curve, piece.u_start, piece.u_end, hemi.centre_mm, hemi.radius_mm,
-                post.chord_tolerance_um * 1e-3, decimals, f"layer {path.layer}, {piece.id}",
-                start_mm=current, end_mm=end_node if last else None)
-            labels.append((sum(len(p) for p in points), piece.id))
-            points.append(verts)
-            current = verts[-1]
-            deviation[piece.id] = max(deviation.get(piece.id, 0.0), dev)
-        body.append(PolylineMove(np.vstack(points), feed, tuple(labels)))
+        run: Run = item
+        label = f"layer {path.layer}"
+        if frame in ("table", "traori") and path_form == "spline":
+            rotary = ()
+            if frame == "traori":
+                ctrl, carry = rotary_controls(run.curve, track, carry, decimals)
+                rotary = tuple((n, ctrl[n]) for n in rot_names)
+            body.append(SplineMove(run.curve, feed, _knot_interval(run.curve, run),
+                                   _labels(run.curve, run), rotary))
+            note(run, [p.max_radial_deviation_mm for p in run.pieces])
+            current_table = run.curve.control_points_mm[-1]
+        elif frame == "machine" and path_form == "spline":
+            qcurve, devs, carry = machine_spline(run, track, carry, hemi.centre_mm, hemi.radius_mm,
+                                                 spline_tol, decimals, label)
+            ctrl = qcurve.control_points_mm
+            xyz_curve = BSplineCurve(qcurve.degree, qcurve.knots, ctrl[:, lin])
+            rotary = tuple((n, np.degrees(ctrl[:, kin.index[n]])) for n in rot_names)
+            body.append(SplineMove(xyz_curve, feed, _knot_interval(qcurve, run),
+                                   _labels(qcurve, run), rotary))
+            note(run, devs)
+            current_q = ctrl[-1]
+        elif frame == "machine":
+            q, lengths, labels, devs, carry = machine_chords(
+                run, track, carry, hemi.centre_mm, hemi.radius_mm, chord_tol, decimals,
+                current_q, label)
+            rotary = tuple((n, np.degrees(q[:, kin.index[n]])) for n in rot_names)
+            body.append(PolylineMove(q[:, lin], feed, labels, rotary,
+                                     feed / np.maximum(lengths, 1e-9)))
+            note(run, devs)
+            current_q = q[-1]
+        else:  # table-frame chords
+            points, labels = [], []
+            end_node = (round_to_decimals(hemi.node(run.end_node).position_mm, decimals)
+                        if run.end_node else run.curve.control_points_mm[-1])
+            for k, piece in enumerate(run.pieces):
+                last = k == len(run.pieces) - 1
+                verts, dev = chords_for_range(
+                    run.curve, piece.u_start, piece.u_end, hemi.centre_mm, hemi.radius_mm,
+                    chord_tol, decimals, f"{label}, {piece.id}", start_mm=current_table,
+                    end_mm=end_node if last else None)
+                labels.append((sum(len(p) for p in points), piece.id))
+                points.append(verts)
+                current_table = verts[-1]
+                deviation[piece.id] = max(deviation.get(piece.id, 0.0), dev)
+            body.append(PolylineMove(np.vstack(points), feed, tuple(labels)))
 
     layer = next(la for la in hemi.layers if la.name == path.layer)
     worst_um = max(deviation.values()) * 1e3
     c = hemi.centre_mm
+    frames = {"table": f"ball centre in the table frame, work offset {post.work_offset}",
+              "traori": f"ball centre in the table frame, work offset {post.work_offset}, "
+                        f"TRAORI on, rotary axes {' '.join(rot_names)} programmed with it",
+              "machine": f"machine axis values {' '.join(kin.names)}, work offset must be zero"}
     if path_form == "spline":
         form = (f"path: B-spline degree {post.spline_degree}, uniform knots; max radial deviation "
                 f"from the sphere as emitted {worst_um:.4f} um (limit {post.spline_tolerance_um:g} um;"
@@ -119,12 +194,13 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
         form,
         f"segments {layer.segments[0].id}..{layer.segments[-1].id}, passes "
         f"{' + '.join(test.passes)}, projection {test.projection}",
+        f"coordinates: {frames[frame]}",
         (f"start and end: node {path.start_node}; every move stays on the sphere"
          if not path.omitted else
          f"left out as infeasible: {', '.join(path.omitted)} (the bar is remounted around them)"),
     ) + ((post.comment,) if post.comment else ())
     program = Program(name=name, controller=controller, layer=path.layer, header=header,
-                      work_offset=post.work_offset, decimals=decimals,
+                      work_offset=post.work_offset, decimals=decimals, frame=frame,
                       tolerance_mm=(post.spline_tolerance_um if path_form == "spline"
                                     else post.chord_tolerance_um) * 1e-3,
                       items=tuple(body))

@@ -21,10 +21,12 @@ class Comment:
 
 @dataclass(frozen=True, slots=True)
 class LinearMove:
-    """Straight feed move.  ``point_mm : (3,) float``."""
+    """Straight feed move.  ``point_mm : (3,) float`` in the program's frame;
+    ``rotary_deg``: (axis, angle) words that go with it."""
 
     point_mm: np.ndarray
     feed_mm_per_min: float
+    rotary_deg: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,15 +41,20 @@ class SplineMove:
     feed_mm_per_min: float
     knot_interval: float
     labels: tuple[tuple[int, str], ...]
+    rotary_deg: tuple[tuple[str, np.ndarray], ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
 class PolylineMove:
-    """3-D chords.  ``points_mm : (k, 3) float`` excludes the current position."""
+    """Chords.  ``points_mm : (k, 3) float`` excludes the current position;
+    ``rotary_deg``: (axis, ``(k,)`` angles); ``inverse_time_per_min : (k,)`` when the
+    feed is given per block in inverse time (G93), else None."""
 
     points_mm: np.ndarray
     feed_mm_per_min: float
     labels: tuple[tuple[int, str], ...]
+    rotary_deg: tuple[tuple[str, np.ndarray], ...] = ()
+    inverse_time_per_min: np.ndarray | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,7 +80,9 @@ class Program:
     ``header`` lines are free text (sanitised by the post-processor);
     ``work_offset`` is the frame the coordinates are written in; ``tolerance_mm`` the
     radial tolerance the path representation was made to (controllers that blend
-    corners are told to stay within it).
+    corners are told to stay within it).  ``frame``: ``table`` (ball centre in the
+    table frame), ``traori`` (the same, with the control's 5-axis transformation on and
+    rotary words) or ``machine`` (machine axis values).
     """
 
     name: str
@@ -83,4 +92,5 @@ class Program:
     work_offset: str
     decimals: int
     tolerance_mm: float
+    frame: str
     items: tuple[Item, ...]

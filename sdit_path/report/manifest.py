@@ -12,6 +12,10 @@ from ..nc.words import count_blocks
 from ..pipeline import PlanResult
 
 FORMAT = "sdit-path/plan"
+FRAMES = {"table": "ball centre in the table frame (work offset)",
+          "traori": "ball centre in the table frame, 5-axis transformation (TRAORI) on, "
+                    "rotary axes programmed",
+          "machine": "machine axis values (zero work offset)"}
 FORMAT_VERSION = 1
 
 
@@ -82,8 +86,9 @@ def manifest(result: PlanResult) -> dict:
         programs.append({
             "file": prog.file, "controller": prog.controller, "layer": prog.layer,
             "name": prog.built.program.name,
-            "frame": {"coordinates": "program (table) frame", "work_offset": cfg.post.work_offset,
-                      "units": "mm"},
+            "frame": {"coordinates": FRAMES[prog.built.program.frame],
+                      "name": prog.built.program.frame,
+                      "work_offset": cfg.post.work_offset, "units": "mm, deg"},
             "start_node": path.start_node,
             "segment_order": list(path.segment_order()),
             "dwell_nodes": dwelled,
@@ -106,8 +111,9 @@ def manifest(result: PlanResult) -> dict:
         "config": {"file": PurePath(cfg.source).name,
                    "sha256": hashlib.sha256(cfg.text.encode("utf-8")).hexdigest()},
         "machine": cfg.machine.name,
-        "frame": {"coordinates": "program (table) frame", "work_offset": cfg.post.work_offset,
-                  "units": "mm", "azimuth": "degrees from +X, counter-clockwise seen from +Z"},
+        "frame": {"coordinates": "table frame (the pivot and the sphere are given in it)",
+                  "work_offset": cfg.post.work_offset, "units": "mm",
+                  "azimuth": "degrees from +X, counter-clockwise seen from +Z"},
         "sphere": {"centre_mm": _mm(hemi.centre_mm), "radius_mm": hemi.radius_mm},
         "test": {"feed_mm_per_min": cfg.test.feed_mm_per_min, "dwell_s": cfg.test.dwell_s,
                  "passes": list(cfg.test.passes), "transit": cfg.test.transit,
