@@ -41,7 +41,8 @@ class Recorder:
         self.line = state.sequence_number
 
     def straight_feed(self, *a):
-        self.feeds.append((self.line, a[0] * 25.4, a[1] * 25.4, a[2] * 25.4))
+        # x y z in inches; a b c in degrees
+        self.feeds.append((self.line, a[0] * 25.4, a[1] * 25.4, a[2] * 25.4, a[3], a[4], a[5]))
 
     def straight_traverse(self, *a):
         self.traverses.append((self.line, a[0] * 25.4, a[1] * 25.4, a[2] * 25.4))
@@ -59,7 +60,7 @@ class Recorder:
         return 1.0
 
     def get_axis_mask(self):
-        return 7
+        return 1 | 2 | 4 | 8 | 16 | 32  # X Y Z A B C
 
     def get_block_delete(self):
         return 0

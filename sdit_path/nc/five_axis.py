@@ -120,6 +120,13 @@ def _fk_deviation(q_of_u, kin: Kinematics, centre: np.ndarray, radius: float,
     return [float(per[(a >= lo - 1e-12) & (b <= hi + 1e-12)].max()) for lo, hi in ranges]
 
 
+def _on_sphere(points: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
+    """Points pushed radially onto the sphere (the fitted table spline is within
+    nanometres of it; machine-space fits aim at the sphere itself)."""
+    d = points - centre
+    return centre + d * (radius / np.linalg.norm(d, axis=1))[:, None]
+
+
 def machine_spline(run: Run, track: AxisTrack, carry: float | None, centre: np.ndarray,
                    radius: float, tolerance_mm: float, decimals: int, label: str
                    ) -> tuple[BSplineCurve, list[float], float | None]:
@@ -130,16 +137,19 @@ def machine_spline(run: Run, track: AxisTrack, carry: float | None, centre: np.n
     a, b = curve.domain
     intervals = len(curve.interval_knots) - 1
     ranges = [(p.u_start, p.u_end) for p in run.pieces]
-    ends_q, _ = track.q(curve.evaluate(np.array([a, b])), carry)
-    ends_q = round_axis_values(ends_q, kin, decimals)
+    def q_at(u):
+        return track.q(_on_sphere(curve.evaluate(u), centre, radius), carry)
+
+    exact_ends = q_at(np.array([a, b]))[0]
+    ends_q = round_axis_values(exact_ends, kin, decimals)
     h = 1e-6 * (b - a)
+    d0 = (q_at(np.array([a + h]))[0][0] - exact_ends[0]) / h
+    d1 = (exact_ends[1] - q_at(np.array([b - h]))[0][0]) / h
     for factor in (1, 2, 3, 4, 6, 8):
         m = intervals * factor
         knots = _uniform_knots(curve.degree, a, b, m)
         u = np.linspace(a, b, 10 * m + 1)
-        q_samples, carry_out = track.q(curve.evaluate(u), carry)
-        d0 = (track.q(curve.evaluate(np.array([a + h])), carry)[0][0] - ends_q[0]) / h
-        d1 = (ends_q[1] - track.q(curve.evaluate(np.array([b - h])), carry)[0][0]) / h
+        q_samples, carry_out = q_at(u)
         ctrl = fit_on_knots(knots, curve.degree, u, q_samples, ends_q[0], ends_q[1], d0, d1)
         ctrl = round_axis_values(ctrl, kin, decimals)
         spline = BSpline(knots, ctrl, curve.degree, extrapolate=False)

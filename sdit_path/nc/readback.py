@@ -20,12 +20,16 @@ from .words import words
 
 @dataclass(frozen=True, slots=True)
 class ReadProgram:
-    """``splines``: every BSPLINE as a curve; ``dwells``: ``(line, seconds, xyz)``;
-    ``points_mm : (k, 3)`` every programmed end point in order."""
+    """``splines``: every BSPLINE as a curve (X Y Z); ``spline_rotary``: for each, the
+    rotary words per control point (axis -> ``(n,)`` deg, the first being the value
+    before the spline); ``dwells``: ``(line, seconds, xyz)``; ``points_mm : (k, 3)``
+    every programmed end point in order; ``traori``: TRAORI was switched on."""
 
     splines: tuple[BSplineCurve, ...]
     dwells: tuple[tuple[int, float, tuple[float, float, float]], ...]
     points_mm: np.ndarray
+    spline_rotary: tuple[dict[str, np.ndarray], ...] = ()
+    traori: bool = False
 
 
 def _knots(degree: int, intervals: list[float]) -> np.ndarray:
@@ -35,9 +39,11 @@ def _knots(degree: int, intervals: list[float]) -> np.ndarray:
 
 def read_sinumerik(text: str) -> ReadProgram:
     pos = [np.nan, np.nan, np.nan]
-    splines, dwells, points = [], [], []
+    rot: dict[str, float] = {}
+    splines, dwells, points, rotary = [], [], [], []
     spline: dict | None = None
     modal_g = "G0"
+    traori = False
 
     def close() -> None:
         nonlocal spline
@@ -50,6 +56,7 @@ def read_sinumerik(text: str) -> ReadProgram:
         pl = float(spline["pl"][0]) if spline["pl"] else 1.0
         w = np.array(spline["w"]) if any(x != 1.0 for x in spline["w"]) else None
         splines.append(BSplineCurve(deg, _knots(deg, [pl] * n_int), q, w))
+        rotary.append({k: np.array(v) for k, v in spline["rot"].items()})
         spline = None
 
     for lineno, raw in enumerate(text.splitlines(), start=1):
@@ -59,6 +66,7 @@ def read_sinumerik(text: str) -> ReadProgram:
         ws, _ = words(code)
         addr = [f"{a}{v}" if a == "G" else a for a, _, v in ws]
         vals = {a: float(v) for a, _, v in ws if v and a != "G"}
+        traori = traori or "TRAORI" in addr
         if "G4" in addr:
             dwells.append((lineno, vals.get("F", float("nan")), tuple(pos)))
             continue
@@ -67,13 +75,19 @@ def read_sinumerik(text: str) -> ReadProgram:
             if motion[-1] != "BSPLINE" or modal_g != "BSPLINE":
                 close()
             if motion[-1] == "BSPLINE" and spline is None:
-                spline = {"points": [list(pos)], "w": [1.0], "pl": [], "degree": 3}
+                spline = {"points": [list(pos)], "w": [1.0], "pl": [], "degree": 3,
+                          "rot": {k: [v] for k, v in rot.items()}}
             modal_g = motion[-1]
         if spline is not None and "SD" in vals:
             spline["degree"] = int(vals["SD"])
         new = [vals.get(k, p) for k, p in zip("XYZ", pos)]
+        for k in "ABC":
+            if k in vals:
+                rot[k] = vals[k]
         if any(k in vals for k in "XYZ"):
             if spline is not None:
+                for k, v in rot.items():
+                    spline["rot"].setdefault(k, []).append(v)
                 spline["points"].append(new)
                 spline["w"].append(vals.get("PW", 1.0))
                 if "PL" in vals:
@@ -81,7 +95,7 @@ def read_sinumerik(text: str) -> ReadProgram:
             pos = new
             points.append(new)
     close()
-    return ReadProgram(tuple(splines), tuple(dwells), np.array(points))
+    return ReadProgram(tuple(splines), tuple(dwells), np.array(points), tuple(rotary), traori)
 
 
 def read_polyline(text: str) -> np.ndarray:

@@ -74,7 +74,7 @@ def test_bundled_programs_pass_the_real_interpreter(default_plan, tmp_path):
         result, message, rec = interpret(str(f))
         assert ok(result), f"{prog.file}: interpreter error: {message}"
         assert not rec.traverses and not rec.arcs
-        p = np.array([x[1:] for x in rec.feeds])
+        p = np.array([x[1:4] for x in rec.feeds])
         assert len(p) > 1000
         r = np.linalg.norm(p - h.centre_mm, axis=1) - h.radius_mm
         assert np.abs(r).max() <= tol

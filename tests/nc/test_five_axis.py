@@ -1,0 +1,118 @@
+"""Five-axis programs of the paper's B-C swivel-table machine, read back and checked
+through the machine's forward kinematics (and LinuxCNC's own interpreter)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.interpolate import BSpline
+
+from sdit_path.config import load_config, parse_config, sample_path
+from sdit_path.machine.kinematics import Kinematics
+from sdit_path.nc.readback import read_sinumerik
+from sdit_path.pipeline import plan
+from sdit_path.report.manifest import manifest
+
+from conftest import edit
+from nc.test_linuxcnc import _require_interpreter
+
+
+@pytest.fixture(scope="module")
+def five_plan():
+    return plan(load_config(sample_path("bc_table_5axis.toml")))
+
+
+def _q_spline(curve, rot, kin, axes=("B", "C")):
+    """Machine values of a read-back spline (X Y Z + rotary words) as one BSpline."""
+    n = len(curve.control_points_mm)
+    q = np.zeros((n, len(kin.names)))
+    for col, name in enumerate("XYZ"):
+        q[:, kin.index[name]] = curve.control_points_mm[:, col]
+    for name in axes:
+        q[:, kin.index[name]] = np.radians(rot[name])
+    return BSpline(curve.knots, q, curve.degree, extrapolate=False)
+
+
+def test_traori_programs_keep_the_table_frame_path_on_the_sphere(five_plan):
+    h = five_plan.hemisphere
+    progs = [p for p in five_plan.programs if p.controller == "sinumerik840d"]
+    assert [p.layer for p in progs] == list("ABCDE")
+    for prog in progs:
+        lines = prog.text.splitlines()
+        assert "TRAORI" in lines and lines.index("TRAORI") < lines.index("TRAFOOF")
+        assert lines[-1] == "M30"
+        read = read_sinumerik(prog.text)
+        assert read.traori
+        for curve, rot in zip(read.splines, read.spline_rotary):
+            assert set(rot) == {"B", "C"} and len(rot["C"]) == len(curve.control_points_mm)
+            u = np.linspace(*curve.domain, 30 * len(curve.control_points_mm))
+            r = np.linalg.norm(curve.evaluate(u) - h.centre_mm, axis=1) - h.radius_mm
+            assert np.abs(r).max() <= 1e-5
+        c = np.concatenate([rot["C"] for rot in read.spline_rotary])
+        assert np.abs(np.diff(c)).max() < 5.0           # rotary words never jump
+        assert 355 < c.max() - c.min() < 365            # C turns once with the bar
+
+
+def test_machine_mode_840d_spline_stays_on_the_sphere_through_fk():
+    text = sample_path("bc_table_5axis.toml").read_text()
+    text = edit(text, "five_axis_mode", '"machine"')
+    text = edit(text, "track_elevations_deg", "[36.0, 72.0]")
+    cfg = parse_config(text, "machine_mode.toml")
+    result = plan(cfg)
+    kin = Kinematics(cfg.machine)
+    h = result.hemisphere
+    prog = next(p for p in result.programs if p.controller == "sinumerik840d")
+    assert "TRAORI" not in prog.text and prog.built.program.frame == "machine"
+    read = read_sinumerik(prog.text)
+    worst = 0.0
+    for curve, rot in zip(read.splines, read.spline_rotary):
+        spline = _q_spline(curve, rot, kin)
+        a, b = curve.domain
+        q = spline(np.linspace(a, b, 40 * len(curve.control_points_mm)))
+        r = np.linalg.norm(kin.forward(q) - h.centre_mm, axis=1) - h.radius_mm
+        worst = max(worst, float(np.abs(r).max()))
+    assert worst <= 1e-5
+    m = manifest(result)
+    assert {p["frame"]["name"] for p in m["programs"]} == {"machine"}
+
+
+def test_linuxcnc_five_axis_programs_pass_the_interpreter_on_the_sphere(five_plan, tmp_path):
+    _require_interpreter()
+    from linuxcnc_oracle import interpret, ok
+
+    cfg = five_plan.config
+    kin = Kinematics(cfg.machine)
+    h = five_plan.hemisphere
+    tol = cfg.post.chord_tolerance_um * 1e-3
+    names = list(kin.names)
+    for prog in (p for p in five_plan.programs if p.controller == "linuxcnc"):
+        assert prog.built.program.frame == "machine"
+        f = tmp_path / prog.file.replace("/", "_")
+        f.write_text(prog.text)
+        result, message, rec = interpret(str(f))
+        assert ok(result), f"{prog.file}: {message}"
+        raw = np.array([x[1:] for x in rec.feeds])        # x y z a b c
+        q = np.zeros((len(raw), len(names)))
+        for col, axis in enumerate("XYZABC"):
+            if axis in kin.index:
+                v = raw[:, col]
+                q[:, kin.index[axis]] = np.radians(v) if axis in "ABC" else v
+        # every block moves every axis linearly: check the ball along each move
+        t = np.linspace(0, 1, 9)[:, None, None]
+        path = (q[:-1][None] * (1 - t) + q[1:][None] * t).reshape(-1, len(names))
+        seg = slice(1, None)  # the first move goes from an unknown position to the start
+        ball = kin.forward(path.reshape(9, -1, len(names))[:, seg].reshape(-1, len(names)))
+        r = np.linalg.norm(ball - h.centre_mm, axis=1) - h.radius_mm
+        assert np.abs(r).max() <= tol, (prog.file, np.abs(r).max())
+        assert [s for _, s in rec.dwells] == [2.0] * len(
+            next(x for x in five_plan.paths if x.layer == prog.layer).dwells)
+
+
+def test_plan_json_says_which_frame(five_plan):
+    m = manifest(five_plan)
+    frames = {p["file"]: p["frame"]["name"] for p in m["programs"]}
+    assert frames["sinumerik840d/SDIT5_A.MPF"] == "traori"
+    assert frames["linuxcnc/SDIT5_A.ngc"] == "machine"
+    json.dumps(m)
