@@ -91,6 +91,8 @@ class Part:
     radius_mm: float
     side: str  # "tool", "work" or "bar"
     exact: bool  # signed distance available (primitives)
+    shape: str = "mesh"
+    size_mm: tuple[float, ...] = ()
 
 
 def _geometry(part: ScenePart, base_dir: Path) -> tuple[object, float, bool]:
@@ -141,18 +143,18 @@ class Scene:
                 pos_home = pos
             self.parts.append(Part(sp.name, sp.body, fcl.CollisionObject(geom, fcl.Transform()),
                                    rot, pos_home, radius, "tool" if sp.body in tool_side else "work",
-                                   exact))
+                                   exact, sp.shape, tuple(sp.size_mm)))
         b = config.ballbar
         r_ball = b.ball_diameter_mm / 2
         self.parts.append(Part("pivot_ball", table_body, fcl.CollisionObject(fcl.Sphere(r_ball), fcl.Transform()),
-                               np.eye(3), np.array(b.pivot_mm), r_ball, "work", True))
+                               np.eye(3), np.array(b.pivot_mm), r_ball, "work", True, "sphere", (r_ball,)))
         self.parts.append(Part("tool_ball", tool_body, fcl.CollisionObject(fcl.Sphere(r_ball), fcl.Transform()),
-                               np.eye(3), kinematics.tip_mm.copy(), r_ball, "tool", True))
+                               np.eye(3), kinematics.tip_mm.copy(), r_ball, "tool", True, "sphere", (r_ball,)))
         bar_len = b.bar_length_mm - b.ball_diameter_mm
         self.parts.append(Part("bar", "bar", fcl.CollisionObject(fcl.Cylinder(b.bar_diameter_mm / 2, bar_len),
                                                                   fcl.Transform()),
                                np.eye(3), np.zeros(3), float(np.hypot(b.bar_diameter_mm / 2, bar_len / 2)),
-                               "bar", True))
+                               "bar", True, "cylinder", (b.bar_diameter_mm / 2, bar_len)))
         self.pivot_mm = np.array(b.pivot_mm)
         self.ball_radius_mm = r_ball
         self._bar_len = bar_len
@@ -199,6 +201,49 @@ class Scene:
             rot_b, trans_b = bodies[p.body]
             out.append((rot_b @ p.rot_home, np.einsum("nij,j->ni", rot_b, p.pos_home) + trans_b))
         return out
+
+    @staticmethod
+    def _point_distance(part: Part, rot: np.ndarray, pos: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """Distance ``(n,)`` from points ``(n, 3)`` to ``part`` posed at (rot, pos), zero
+        inside; exact for primitives, a bounding sphere for meshes."""
+        local = np.einsum("nji,nj->ni", rot, pts - pos)
+        if part.shape == "box":
+            half = np.array(part.size_mm) / 2
+            return np.linalg.norm(np.maximum(np.abs(local) - half, 0.0), axis=1)
+        if part.shape == "cylinder":
+            r, half = part.size_mm[0], part.size_mm[1] / 2
+            radial = np.maximum(np.hypot(local[:, 0], local[:, 1]) - r, 0.0)
+            axial = np.maximum(np.abs(local[:, 2]) - half, 0.0)
+            return np.hypot(radial, axial)
+        if part.shape == "capsule":
+            r, half = part.size_mm[0], part.size_mm[1] / 2
+            z = np.clip(local[:, 2], -half, half)
+            return np.maximum(np.linalg.norm(local - np.stack([0 * z, 0 * z, z], 1), axis=1) - r, 0.0)
+        if part.shape == "sphere":
+            return np.maximum(np.linalg.norm(local, axis=1) - part.size_mm[0], 0.0)
+        return np.maximum(np.linalg.norm(local, axis=1) - part.radius_mm, 0.0)
+
+    def lower_bounds(self, poses: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+        """A lower bound ``(n, n_pairs)`` of every clearance, from the exact distance of
+        the smaller part's bounding sphere to the larger part (vectorised)."""
+        n = len(poses[0][1])
+        out = np.empty((n, len(self.pairs)))
+        for c, (a, b) in enumerate(self.pairs):
+            big, small = (a, b) if self.parts[a].radius_mm >= self.parts[b].radius_mm else (b, a)
+            rot_s, pos_s = poses[small]
+            rot_b, pos_b = poses[big]
+            d = self._point_distance(self.parts[big], rot_b, pos_b, pos_s)
+            out[:, c] = d - self.parts[small].radius_mm - self._allowance[c] - 1e-6
+        return out
+
+    def exact(self, poses: list[tuple[np.ndarray, np.ndarray]], i: int, pair: int) -> float:
+        """fcl distance of ``pair`` at pose ``i`` (conservative, see the module)."""
+        a, b = self.pairs[pair]
+        for k in (a, b):
+            rot, pos = poses[k]
+            self.parts[k].obj.setTransform(fcl.Transform(rot[i], pos[i]))
+        return fcl.distance(self.parts[a].obj, self.parts[b].obj, self._req,
+                            fcl.DistanceResult()) - self._allowance[pair]
 
     def clearances(self, q: np.ndarray) -> np.ndarray:
         """Distance ``(n, n_pairs)`` in mm for every pose and checked pair; zero or

@@ -88,3 +88,26 @@ def test_unreachable_rotary_schedule_names_axis_and_overshoot():
     with pytest.raises(PlanError) as err:
         plan(parse_config(text, "tilt.toml"))
     assert any("B 1" in d and "exceeds its limit 119 deg" in d for d in err.value.details)
+
+
+@pytest.mark.parametrize("sample", ["bc_table_5axis.toml", "vmc_3axis_collision.toml"])
+def test_bounded_search_equals_the_exhaustive_scan(sample):
+    """The lower-bound pruning never changes the answer: per piece, the minimum
+    clearance equals the minimum over every pose and every pair computed by fcl."""
+    from sdit_path.geometry.hemisphere import partition
+    from sdit_path.geometry.paths import PathBuilder
+    from sdit_path.interference.check import run_clearances
+    from sdit_path.machine.poses import layer_poses
+
+    cfg = load_config(sample_path(sample))
+    hemi = partition(cfg)
+    kin = Kinematics(cfg.machine)
+    scene = Scene(cfg, kin)
+    path = PathBuilder(cfg, hemi).layer_path(hemi.layers[0])
+    for rp in layer_poses(path, cfg, kin)[:4]:
+        found, _ = run_clearances(rp, scene, cfg.check.safety_clearance_mm)
+        full = scene.clearances(rp.q)
+        lower = scene.lower_bounds(scene.part_poses(rp.q))
+        assert (lower <= full + 1e-9).all()            # the bound is a bound
+        for k, clearance in found.items():
+            assert clearance.value_mm == pytest.approx(full[rp.piece == k].min(), abs=1e-9)
