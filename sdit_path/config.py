@@ -716,10 +716,17 @@ def load_config(path: str | Path | None = None) -> Config:
         text = sample_path(DEFAULT_SAMPLE).read_text(encoding="utf-8")
         return parse_config(text, source=f"samples/{DEFAULT_SAMPLE}")
     p = Path(path)
+    if not p.exists() and p.parent == Path("."):
+        bundled = bundled_samples()
+        name = p.name if p.suffix == ".toml" else f"{p.name}.toml"
+        if name in bundled:
+            text = sample_path(name).read_text(encoding="utf-8")
+            return parse_config(text, source=f"samples/{name}")
     try:
         raw = p.read_bytes()
     except FileNotFoundError:
-        raise ConfigError(str(p), "no such file; expected a TOML configuration") from None
+        raise ConfigError(str(p), f"no such file; expected a TOML configuration or a bundled "
+                                  f"sample ({', '.join(bundled_samples())})") from None
     except IsADirectoryError:
         raise ConfigError(str(p), "is a directory; expected a TOML configuration file") from None
     except OSError as exc:
@@ -730,6 +737,11 @@ def load_config(path: str | Path | None = None) -> Config:
         line = raw[: exc.start].count(b"\n") + 1
         raise ConfigError(f"{p}:{line}", "not UTF-8 text; expected a TOML configuration") from None
     return parse_config(text, source=str(p))
+
+
+def bundled_samples() -> list[str]:
+    """File names of the bundled sample configurations."""
+    return sorted(p.name for p in sample_path(DEFAULT_SAMPLE).parent.glob("*.toml"))
 
 
 def sample_path(name: str) -> Path:

@@ -116,3 +116,18 @@ def test_plan_json_says_which_frame(five_plan):
     assert frames["sinumerik840d/SDIT5_A.MPF"] == "traori"
     assert frames["linuxcnc/SDIT5_A.ngc"] == "machine"
     json.dumps(m)
+
+
+def test_locked_schedule_on_the_five_axis_machine_sets_rotary_axes_once():
+    text = edit(sample_path("bc_table_5axis.toml").read_text(), "schedule", '"locked"')
+    text = edit(text, "track_elevations_deg", "[0.0, 45.0]")
+    result = plan(parse_config(text, "locked.toml"))
+    for prog in result.programs:
+        assert prog.built.program.frame == "table"
+        moves = [l for l in prog.text.splitlines() if l.startswith("G1 X")]
+        assert " B0.000000 C0.000000 " in moves[0] + " "
+        assert "TRAORI" not in prog.text and "G93" not in prog.text
+    # machine Z = table z + tool length: the table frame is the bed frame at B = C = 0
+    kin = Kinematics(result.config.machine)
+    q = kin.inverse(np.array([[0.0, 0.0, 0.0]]), {"B": [0.0], "C": [0.0]})
+    assert q[0, kin.index["Z"]] == pytest.approx(100.0)
