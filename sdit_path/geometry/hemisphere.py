@@ -19,15 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..arrays import frozen
+
 from ..config import Config
 
 TOP = "TOP"
 
-
-def _frozen(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=float)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True, slots=True)
@@ -116,7 +113,7 @@ def track_names(count: int) -> tuple[str, ...]:
 def partition(config: Config) -> Hemisphere:
     """Tracks, nodes, layers and segments for the configured test."""
     t = config.test
-    centre = _frozen(config.ballbar.pivot_mm)
+    centre = frozen(config.ballbar.pivot_mm)
     radius = config.ballbar.bar_length_mm
     names = track_names(len(t.track_elevations_deg))
     elevations = [math.radians(e) for e in t.track_elevations_deg]
@@ -132,8 +129,8 @@ def partition(config: Config) -> Hemisphere:
             pos = centre + radius * np.array([ce * math.cos(az), ce * math.sin(az),
                                               math.sin(track.elevation_rad)])
             nodes.append(Node(f"{track.name}-{k + 1}", track.name, az, track.elevation_rad,
-                              _frozen(pos)))
-    nodes.append(Node(TOP, TOP, 0.0, math.pi / 2, _frozen(centre + [0.0, 0.0, radius])))
+                              frozen(pos)))
+    nodes.append(Node(TOP, TOP, 0.0, math.pi / 2, frozen(centre + [0.0, 0.0, radius])))
 
     layers = []
     cap = math.radians(t.curve.cap_elevation_deg)

@@ -19,6 +19,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from ..arrays import frozen
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.interpolate import BSpline, CubicSpline
@@ -26,10 +28,6 @@ from scipy.interpolate import BSpline, CubicSpline
 from ..errors import PlanError
 
 
-def _frozen(a, dtype=float) -> np.ndarray:
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,10 +44,10 @@ class BSplineCurve:
     weights: np.ndarray | None = None
 
     def __post_init__(self):
-        object.__setattr__(self, "knots", _frozen(self.knots))
-        object.__setattr__(self, "control_points_mm", _frozen(self.control_points_mm))
+        object.__setattr__(self, "knots", frozen(self.knots))
+        object.__setattr__(self, "control_points_mm", frozen(self.control_points_mm))
         if self.weights is not None:
-            object.__setattr__(self, "weights", _frozen(self.weights))
+            object.__setattr__(self, "weights", frozen(self.weights))
 
     @property
     def domain(self) -> tuple[float, float]:

@@ -83,19 +83,20 @@ class Kinematics:
             out.append((rot, trans))
         return out
 
-    def table_transform(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        chain = self.chain_transforms(q, self.workpiece)
-        if chain:
-            return chain[-1]
+    def _end_of(self, q: np.ndarray, chain: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+        transforms = self.chain_transforms(q, chain)
+        if transforms:
+            return transforms[-1]
         n = len(np.atleast_2d(q))
         return np.broadcast_to(np.eye(3), (n, 3, 3)), np.zeros((n, 3))
 
+    def table_transform(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bed -> table frame: rotation ``(n, 3, 3)``, translation ``(n, 3)``."""
+        return self._end_of(q, self.workpiece)
+
     def tool_transform(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        chain = self.chain_transforms(q, self.tool)
-        if chain:
-            return chain[-1]
-        n = len(np.atleast_2d(q))
-        return np.broadcast_to(np.eye(3), (n, 3, 3)), np.zeros((n, 3))
+        """Bed -> spindle frame."""
+        return self._end_of(q, self.tool)
 
     def body_transforms(self, q: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Bed -> body for ``bed`` and every axis body (the body an axis moves)."""

@@ -7,16 +7,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..arrays import frozen
+
 from ..config import Config
 from ..geometry.paths import LayerPath, Run
 from .kinematics import Kinematics
 from .schedule import RotarySchedule
 
 
-def _frozen(a) -> np.ndarray:
-    a = np.array(a)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,5 +63,5 @@ def layer_poses(path: LayerPath, config: Config, kinematics: Kinematics,
         angles, carry = schedule.angles(points, carry)
         q = kinematics.inverse(points, angles)
         s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-        out.append(RunPoses(run, _frozen(u), _frozen(s), _frozen(points), _frozen(q), _frozen(piece)))
+        out.append(RunPoses(run, frozen(u), frozen(s), frozen(points), frozen(q), frozen(piece)))
     return tuple(out)
