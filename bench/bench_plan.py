@@ -18,10 +18,12 @@ import time
 from sdit_path import __version__
 from sdit_path.config import load_config
 from sdit_path.geometry.hemisphere import partition
-from sdit_path.geometry.paths import PathBuilder, check_travel
+from sdit_path.geometry.paths import PathBuilder
+from sdit_path.interference.scene import Scene
+from sdit_path.machine.kinematics import Kinematics
 from sdit_path.nc.chords import chords_for_range
 from sdit_path.nc.words import count_blocks
-from sdit_path.pipeline import post_layer
+from sdit_path.pipeline import check_layer, post_layer
 
 
 def main(argv: list[str]) -> None:
@@ -29,12 +31,14 @@ def main(argv: list[str]) -> None:
     t0 = time.perf_counter()
     hemi = partition(cfg)
     builder = PathBuilder(cfg, hemi)
-    paths = []
-    for layer in hemi.layers:
-        path = builder.layer_path(layer)
-        check_travel(path, cfg)
-        paths.append(path)
+    paths = [builder.layer_path(layer) for layer in hemi.layers]
     t_plan = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    kin = Kinematics(cfg.machine)
+    scene = Scene(cfg, kin)
+    for path in paths:
+        check_layer(path, cfg, kin, scene)
+    t_check = time.perf_counter() - t1
     t_post, progs = {}, []
     for controller in cfg.post.controllers:
         t1 = time.perf_counter()
@@ -45,6 +49,7 @@ def main(argv: list[str]) -> None:
     print(f"sdit-path {__version__} bench_plan: {cfg.source}, R {hemi.radius_mm:g} mm, "
           f"{hemi.segment_count} segments")
     print(f"plan (partition + fit)        {t_plan:8.3f} s")
+    print(f"check (reach + interference)  {t_check:8.3f} s")
     for c, t in t_post.items():
         print(f"post {c:<24} {t:8.3f} s")
     print(f"total                         {total:8.3f} s")
@@ -59,6 +64,7 @@ def main(argv: list[str]) -> None:
     # BSPLINE vs G1 polyline at equal radial tolerance, same paths, motion blocks only
     tol = cfg.post.spline_tolerance_um * 1e-3
     spline_blocks = sum(len(r.curve.control_points_mm) - 1 for p in paths for r in p.runs)
+    # (the table-frame spline; 5-axis machine-axis programs are fitted separately)
     chord_blocks = 0
     for p in paths:
         for r in p.runs:
