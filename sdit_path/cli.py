@@ -46,7 +46,7 @@ def plan_command(config: str | None, out_dir: str, force: bool, skip_infeasible:
     from .nc.registry import get_postprocessor
     from .nc.words import count_blocks
     from .output import write_tree
-    from .pipeline import plan, step_count
+    from .pipeline import plan, step_count, trajectory_files
     from .report.manifest import manifest_text
 
     console = Console(stderr=True, quiet=quiet)
@@ -58,7 +58,9 @@ def plan_command(config: str | None, out_dir: str, force: bool, skip_infeasible:
             task = bar.add_task("planning", total=step_count(cfg))
             result = plan(cfg, on_step=lambda msg: bar.update(task, advance=1, description=msg),
                           skip_infeasible=skip_infeasible)
-        files = {p.file: p.text for p in result.programs}
+            files = {p.file: p.text for p in result.programs}
+            files.update(trajectory_files(
+                result, on_step=lambda msg: bar.update(task, advance=1, description=msg)))
         files["plan.json"] = manifest_text(result)
         out = write_tree(out_dir, files, force=force)
     except SditError as exc:
@@ -69,14 +71,16 @@ def plan_command(config: str | None, out_dir: str, force: bool, skip_infeasible:
     table = Table(title=f"{cfg.machine.name}: R {result.hemisphere.radius_mm:g} mm, "
                         f"F{cfg.test.feed_mm_per_min:g}, dwell {cfg.test.dwell_s:g} s",
                   title_justify="left")
-    for col in ("layer", "segments", "dwells"):
+    for col in ("layer", "segments", "dwells", "cycle (s)"):
         table.add_column(col, justify="right" if col != "layer" else "left")
     for c in cfg.post.controllers:
         short = get_postprocessor(c).short
         table.add_column(f"{short} blocks", justify="right")
         table.add_column(f"{short} max dev (um)", justify="right")
     for path in result.paths:
-        row = [path.layer, str(len(set(path.segment_order()))), str(len(path.dwells))]
+        timed = next(la.timed for la in result.layers if la.path is path)
+        row = [path.layer, str(len(set(path.segment_order()))), str(len(path.dwells)),
+               f"{timed.duration_s:.1f}" if timed else "-"]
         for c in cfg.post.controllers:
             p = next(x for x in result.programs if x.layer == path.layer and x.controller == c)
             row += [str(count_blocks(p.text)), f"{p.built.max_deviation_mm * 1e3:.4f}"]

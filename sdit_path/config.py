@@ -173,6 +173,14 @@ class CheckConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class TimingConfig:
+    """Trajectory export: ``sample_rate_hz`` of ``DIR/trajectories/<program>.csv``."""
+
+    sample_rate_hz: float
+    export_trajectories: bool
+
+
+@dataclass(frozen=True, slots=True)
 class ScenePart:
     """A collision part attached to a body (an axis name, or ``bed``), placed with
     every axis at 0 in the bed frame.  ``shape`` is box, cylinder, capsule, sphere or
@@ -217,6 +225,7 @@ class Config:
     post: PostConfig
     check: CheckConfig
     scene: SceneConfig
+    timing: TimingConfig
     text: str = field(default="", repr=False, compare=False)
 
 
@@ -347,6 +356,15 @@ class _Reader:
             raise self.fail(key, f"expected a non-empty list of numbers{_unit(unit)}, "
                                  f"got {_describe(value)}")
         return tuple(float(v) for v in value)
+
+    def boolean(self, data: dict, key: str, default: bool) -> bool:
+        name = key.rsplit(".", 1)[-1]
+        if name not in data:
+            return default
+        value = data[name]
+        if not isinstance(value, bool):
+            raise self.fail(key, f"expected true or false, got {_describe(value)}")
+        return value
 
     def strings(self, data: dict, key: str, default: tuple[str, ...]) -> tuple[str, ...]:
         name = key.rsplit(".", 1)[-1]
@@ -679,16 +697,20 @@ def parse_config(text: str, source: str = "<config>") -> Config:
         where = f"{source}:{m.group(1)}" if m else source
         raise ConfigError(where, f"cannot parse TOML: {msg}") from None
     r = _Reader(source, text)
-    r.no_unknown(root, "", ("machine", "ballbar", "test", "post", "check", "scene"))
+    r.no_unknown(root, "", ("machine", "ballbar", "test", "post", "check", "scene", "timing"))
     machine = _machine(r, root)
     ballbar = _ballbar(r, root, machine)
     test = _test(r, root, machine)
     post = _post(r, root)
     check = _check(r, root)
     scene = _scene(r, root, machine)
+    tm = r.table(root, "timing", ("sample_rate_hz", "export_trajectories"), required=False)
+    timing = TimingConfig(
+        sample_rate_hz=r.number(tm, "timing.sample_rate_hz", 1000.0, gt=0, le=20000, unit="Hz"),
+        export_trajectories=r.boolean(tm, "timing.export_trajectories", True))
     _pivot_reachable(r, machine, ballbar, test)
     return Config(source=source, machine=machine, ballbar=ballbar, test=test, post=post,
-                  check=check, scene=scene, text=text)
+                  check=check, scene=scene, timing=timing, text=text)
 
 
 def _pivot_reachable(r: _Reader, machine: MachineConfig, ballbar: BallbarConfig,

@@ -21,6 +21,7 @@ from .machine.poses import RunPoses, layer_poses
 from .machine.reach import PieceCheck, Violation, reach_violations
 from .nc.build import BuiltProgram, build_program
 from .nc.registry import get_postprocessor
+from .timing.trajectory import TimedLayer, Timer, sample, to_csv
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,6 +43,7 @@ class LayerPlan:
     path: LayerPath
     poses: tuple[RunPoses, ...]
     checks: tuple[PieceCheck, ...]
+    timed: TimedLayer | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -166,6 +168,9 @@ def plan(config: Config, on_step: Callable[[str], None] | None = None,
             on_step(f"layer {layer.name} planned and checked")
     if bad:
         raise _infeasible_message(bad)
+    timer = Timer(config, kin)
+    layers = [LayerPlan(lp.path, lp.poses, lp.checks,
+                        timer.time_layer(lp.path) if lp.path.items else None) for lp in layers]
     programs = []
     for lp in layers:
         for controller in config.post.controllers:
@@ -177,4 +182,36 @@ def plan(config: Config, on_step: Callable[[str], None] | None = None,
 
 
 def step_count(config: Config) -> int:
-    return len(config.test.track_elevations_deg) * (1 + len(config.post.controllers))
+    """Units of work :func:`plan` reports (plus one per trajectory file written by
+    :func:`trajectory_files`)."""
+    per_layer = 1 + len(config.post.controllers)
+    if config.timing.export_trajectories:
+        per_layer += 1
+    return len(config.test.track_elevations_deg) * per_layer
+
+
+def trajectory_files(result: PlanResult, on_step: Callable[[str], None] | None = None
+                     ) -> dict[str, str]:
+    """``trajectories/<program>.csv`` for every programmed layer (one per layer: the
+    controllers run the same timed path)."""
+    cfg = result.config
+    if not cfg.timing.export_trajectories:
+        return {}
+    timer = Timer(cfg)
+    files = {}
+    for lp in result.layers:
+        if lp.timed is None:
+            continue
+        prog = next(p for p in result.programs if p.layer == lp.path.layer)
+        name = prog.built.program.name
+        samples = sample(lp.timed, timer, cfg.timing.sample_rate_hz)
+        header = {"program": name, "layer": lp.path.layer,
+                  "sample_rate_hz": f"{cfg.timing.sample_rate_hz:g}",
+                  "feed_mm_per_min": f"{cfg.test.feed_mm_per_min:g}",
+                  "cycle_time_s": f"{lp.timed.duration_s:.4f}",
+                  "frame": "ball_* in the table frame; axis_* machine axis values",
+                  "generator": f"sdit-path {__version__}"}
+        files[f"trajectories/{name}.csv"] = to_csv(samples, header)
+        if on_step:
+            on_step(f"trajectory of layer {lp.path.layer} written")
+    return files

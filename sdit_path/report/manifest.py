@@ -42,6 +42,7 @@ def manifest(result: PlanResult) -> dict:
                 lengths[p.id] = p.length_mm
                 kinds[p.id] = p.kind
     checks = {c.piece_id: c for la in result.layers for c in la.checks}
+    timed = {la.path.layer: la.timed for la in result.layers if la.timed is not None}
     omitted = {pid for la in result.layers for pid in la.path.omitted}
 
     def check_entry(pid: str) -> dict:
@@ -96,6 +97,10 @@ def manifest(result: PlanResult) -> dict:
             "blocks": count_blocks(text),
             "path_length_mm": round(sum(r.length_mm for r in path.runs), 6),
             "max_radial_deviation_um": round(prog.built.max_deviation_mm * 1e3, 6),
+            "cycle_time_s": round(timed[prog.layer].duration_s, 4) if prog.layer in timed else None,
+            "motion_time_s": round(timed[prog.layer].motion_s, 4) if prog.layer in timed else None,
+            "trajectory": (f"trajectories/{prog.built.program.name}.csv"
+                           if cfg.timing.export_trajectories and prog.layer in timed else None),
             "sha256": hashlib.sha256(text.encode("ascii")).hexdigest(),
         })
     limits = {"sinumerik840d": cfg.post.spline_tolerance_um, "linuxcnc": cfg.post.chord_tolerance_um}

@@ -1,0 +1,1 @@
+"""Timing stage: path limits, ruckig profiles and timed, sampled trajectories."""

@@ -1,0 +1,281 @@
+"""Timed trajectories: where the machine is at every moment of a layer program.
+
+Every run (dwell to dwell) is timed along the ball's arc length by ruckig with limits
+from :mod:`~sdit_path.timing.limits`; at every static node the machine rests for the
+dwell; where a program steps over left-out segments (bar off) it repositions along
+straight lines, rest to rest.  The program's own first positioning move (from wherever
+the machine was) is not part of the trajectory: time 0 is the start of the first dwell.
+
+``sample`` turns a timed layer into arrays at a fixed rate; ``to_csv`` into the
+trajectory file: ``t_s``, the ball centre in the table frame (``ball_x_mm`` ...), every
+machine axis (``axis_X_mm`` ... ``axis_C_deg``), ``segment``, ``phase`` (accelerate,
+cruise, decelerate, dwell, reposition) and ``path_speed_mm_per_s``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import BSpline, CubicSpline
+
+from ..config import Config
+from ..geometry.paths import Dwell, LayerPath, Remount, Run
+from ..machine.kinematics import Kinematics
+from ..machine.schedule import RotarySchedule
+from .limits import PathLimits, path_limits
+from .profile import PHASES, Profile, plan_profile
+
+PHASE_NAMES = ("accelerate", "cruise", "decelerate", "dwell", "reposition")
+
+
+class RunGeometry:
+    """Arc length <-> parameter of a run's fitted spline, and points along it."""
+
+    def __init__(self, run: Run, per_interval: int = 48):
+        curve = run.curve
+        knots = curve.interval_knots
+        frac = np.linspace(0.0, 1.0, per_interval + 1)[:-1]
+        u = np.concatenate([knots[:-1, None] + np.diff(knots)[:, None] * frac[None, :]]).ravel()
+        u = np.append(u, knots[-1])
+        deriv = BSpline(curve.knots, curve.control_points_mm, curve.degree).derivative()
+        speed = np.linalg.norm(deriv(u), axis=1)
+        # Simpson on each pair of sub-intervals is exact to ~1e-12 here; trapezoid with
+        # a Richardson step is plenty and keeps the grid uniform per knot interval
+        seg = 0.5 * (speed[1:] + speed[:-1]) * np.diff(u)
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        self.run = run
+        self.curve = curve
+        self.length_mm = float(s[-1])
+        self._u_of_s = CubicSpline(s, u)
+        self._s_of_u = CubicSpline(u, s)
+
+    def u(self, s: np.ndarray) -> np.ndarray:
+        a, b = self.curve.domain
+        return np.clip(self._u_of_s(np.clip(s, 0.0, self.length_mm)), a, b)
+
+    def s(self, u: np.ndarray) -> np.ndarray:
+        return self._s_of_u(u)
+
+    def points(self, s: np.ndarray) -> np.ndarray:
+        return self.curve.evaluate(self.u(s))
+
+
+@dataclass(frozen=True, slots=True)
+class TimedRun:
+    geometry: RunGeometry
+    profile: Profile
+    start_s: float
+    carry_in: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class TimedDwell:
+    node_id: str
+    position_mm: np.ndarray
+    start_s: float
+    duration_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class TimedLine:
+    """A straight repositioning move in the table frame (the bar is off), with the
+    rotary angles moving linearly from ``angles_from`` to ``angles_to`` (rad)."""
+
+    a_mm: np.ndarray
+    b_mm: np.ndarray
+    angles_from: dict
+    angles_to: dict
+    profile: Profile
+    start_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class TimedLayer:
+    layer: str
+    items: tuple
+    duration_s: float
+    axis_names: tuple[str, ...]
+    axis_units: tuple[str, ...]
+
+    @property
+    def motion_s(self) -> float:
+        return sum(i.profile.duration_s for i in self.items if not isinstance(i, TimedDwell))
+
+
+class Timer:
+    """Times layer paths for one configuration."""
+
+    def __init__(self, config: Config, kinematics: Kinematics | None = None,
+                 feed_mm_per_min: float | None = None):
+        self.config = config
+        self.kin = kinematics or Kinematics(config.machine)
+        self.schedule = RotarySchedule(config, self.kin)
+        self.feed = (feed_mm_per_min or config.test.feed_mm_per_min) / 60.0
+        axes = self.kin.axes
+        self.v_lim = np.array([a.max_velocity for a in axes])
+        self.a_lim = np.array([a.max_acceleration for a in axes])
+        self.j_lim = np.array([a.max_jerk for a in axes])
+
+    def axis_values(self, points: np.ndarray, carry: float | None) -> tuple[np.ndarray, float | None]:
+        angles, carry_out = self.schedule.angles(points, carry)
+        return self.kin.inverse(points, angles), carry_out
+
+    def run_limits(self, geo: RunGeometry, carry: float | None,
+                   step_mm: float = 0.1) -> tuple[PathLimits, float | None]:
+        n = max(64, math.ceil(geo.length_mm / step_mm))
+        s = np.linspace(0.0, geo.length_mm, n + 1)
+        h = s[1] - s[0]
+        q, carry_out = self.axis_values(geo.points(s), carry)
+        d1 = np.gradient(q, h, axis=0, edge_order=2)
+        d2 = np.gradient(d1, h, axis=0, edge_order=2)
+        d3 = np.gradient(d2, h, axis=0, edge_order=2)
+        return path_limits(d1, d2, d3, self.v_lim, self.a_lim, self.j_lim, self.kin.names,
+                           self.feed), carry_out
+
+    def line_limits(self, a: np.ndarray, b: np.ndarray, angles_from: dict, angles_to: dict
+                    ) -> PathLimits:
+        length = float(np.linalg.norm(b - a))
+        t = np.linspace(0.0, 1.0, 33)
+        pts = a + (b - a) * t[:, None]
+        ang = {k: angles_from[k] + (angles_to[k] - angles_from[k]) * t for k in angles_from}
+        q = self.kin.inverse(pts, ang)
+        d1 = np.gradient(q, length / 32, axis=0, edge_order=2)
+        zero = np.zeros_like(d1)
+        return path_limits(d1, zero, zero, self.v_lim, self.a_lim, self.j_lim, self.kin.names,
+                           self.feed)
+
+    def time_layer(self, path: LayerPath) -> TimedLayer:
+        items = []
+        t = 0.0
+        carry = None
+        last_angles = None
+        for item in path.items:
+            if isinstance(item, Dwell):
+                items.append(TimedDwell(item.node_id, item.position_mm, t, item.seconds))
+                t += item.seconds
+            elif isinstance(item, Run):
+                geo = RunGeometry(item)
+                limits, carry_out = self.run_limits(geo, carry)
+                prof = plan_profile(geo.length_mm, limits, f"layer {path.layer}, "
+                                                            f"{item.pieces[0].id}")
+                items.append(TimedRun(geo, prof, t, carry))
+                end = item.curve.control_points_mm[-1][None, :]
+                last_angles = {k: float(v[0]) for k, v in self.schedule.angles(end, carry)[0].items()}
+                carry = carry_out
+                t += prof.duration_s
+            elif isinstance(item, Remount):
+                here = item.from_mm
+                angles_here = last_angles or {k: float(v[0]) for k, v in
+                                              self.schedule.angles(here[None, :], carry)[0].items()}
+                target, carry = self.schedule.angles(item.to_mm[None, :], carry)
+                angles_target = {k: float(v[0]) for k, v in target.items()}
+                stops = [here] + list(item.via_mm) + [item.to_mm]
+                for k, (a, b) in enumerate(zip(stops, stops[1:])):
+                    # out with the old angles; they change on the way up; then the new
+                    af = angles_here if k <= 1 else angles_target
+                    at = angles_here if k == 0 else angles_target
+                    lim = self.line_limits(np.asarray(a), np.asarray(b), af, at)
+                    prof = plan_profile(float(np.linalg.norm(np.asarray(b) - a)), lim, "reposition")
+                    items.append(TimedLine(np.asarray(a), np.asarray(b), af, at, prof, t))
+                    t += prof.duration_s
+                last_angles = angles_target
+        return TimedLayer(path.layer, tuple(items), t, self.kin.names,
+                          tuple(a.unit for a in self.kin.axes))
+
+
+@dataclass(frozen=True, slots=True)
+class Samples:
+    """A sampled trajectory.  ``ball_mm : (n, 3)`` table frame; ``axes : (n, n_axes)``
+    in mm and deg; ``segment`` and ``phase`` labels ``(n,)``."""
+
+    t_s: np.ndarray
+    ball_mm: np.ndarray
+    axes: np.ndarray
+    segment: np.ndarray
+    phase: np.ndarray
+    speed_mm_per_s: np.ndarray
+    axis_names: tuple[str, ...]
+    axis_units: tuple[str, ...]
+
+
+def sample(timed: TimedLayer, timer: Timer, rate_hz: float = 1000.0) -> Samples:
+    """The trajectory at ``rate_hz`` from time 0 to the end (inclusive)."""
+    n = int(math.floor(timed.duration_s * rate_hz + 1e-9)) + 1
+    t = np.arange(n) / rate_hz
+    ball = np.zeros((n, 3))
+    q = np.zeros((n, len(timed.axis_names)))
+    segment = np.empty(n, dtype=object)
+    phase = np.empty(n, dtype=object)
+    speed = np.zeros(n)
+    kin = timer.kin
+    for k, item in enumerate(timed.items):
+        dur = item.duration_s if isinstance(item, TimedDwell) else item.profile.duration_s
+        last = k == len(timed.items) - 1
+        sel = np.where((t >= item.start_s) & ((t <= item.start_s + dur) if last
+                                               else (t < item.start_s + dur)))[0]
+        if not sel.size:
+            continue
+        if isinstance(item, TimedDwell):
+            p = np.broadcast_to(item.position_mm, (sel.size, 3))
+            ball[sel] = p
+            segment[sel] = item.node_id
+            phase[sel] = "dwell"
+            q[sel], _ = timer.axis_values(np.asarray(p), _carry_at(timed, k))
+            continue
+        s, v, _, _, ph = item.profile.evaluate(t[sel] - item.start_s)
+        speed[sel] = v
+        if isinstance(item, TimedLine):
+            f = np.clip(s / max(item.profile.length_mm, 1e-12), 0.0, 1.0)
+            p = item.a_mm + (item.b_mm - item.a_mm) * f[:, None]
+            ang = {a: item.angles_from[a] + (item.angles_to[a] - item.angles_from[a]) * f
+                   for a in item.angles_from}
+            ball[sel] = p
+            q[sel] = kin.inverse(p, ang)
+            segment[sel] = "remount"
+            phase[sel] = "reposition"
+            continue
+        geo = item.geometry
+        u = geo.u(s)
+        p = geo.curve.evaluate(u)
+        ball[sel] = p
+        q[sel], _ = timer.axis_values(p, item.carry_in)
+        pieces = geo.run.pieces
+        starts = np.array([pc.u_start for pc in pieces])
+        idx = np.clip(np.searchsorted(starts, u, side="right") - 1, 0, len(pieces) - 1)
+        segment[sel] = np.array([pc.id for pc in pieces], dtype=object)[idx]
+        phase[sel] = np.array(PHASES, dtype=object)[ph]
+    for i in kin.rotary:
+        q[:, i] = np.degrees(q[:, i])
+    return Samples(t, ball, q, segment, phase, speed, timed.axis_names, timed.axis_units)
+
+
+def _carry_at(timed: TimedLayer, k: int) -> float | None:
+    """The azimuth carry in force at item ``k`` (from the last run before it)."""
+    for item in reversed(timed.items[:k]):
+        if isinstance(item, TimedRun):
+            return item.carry_in
+    for item in timed.items[k:]:
+        if isinstance(item, TimedRun):
+            return item.carry_in
+    return None
+
+
+def to_csv(samples: Samples, header: dict[str, str]) -> str:
+    """CSV text with ``# key: value`` lines first; numbers fixed-point."""
+    lines = [f"# {k}: {v}" for k, v in header.items()]
+    cols = (["t_s", "ball_x_mm", "ball_y_mm", "ball_z_mm"]
+            + [f"axis_{n}_{u}" for n, u in zip(samples.axis_names, samples.axis_units)]
+            + ["segment", "phase", "path_speed_mm_per_s"])
+    lines.append(",".join(cols))
+    num = np.round(np.column_stack([samples.t_s, samples.ball_mm, samples.axes]), 8) + 0.0
+    n, k = num.shape
+    table = np.empty((n, k + 3), dtype=object)
+    table[:, :k] = num
+    table[:, k] = samples.segment
+    table[:, k + 1] = samples.phase
+    table[:, k + 2] = samples.speed_mm_per_s
+    row = ",".join(["%.4f"] + ["%.8f"] * (k - 1) + ["%s", "%s", "%.5f"]) + "\n"
+    lines.append((row * n)[:-1] % tuple(table.ravel()))
+    return "\n".join(lines) + "\n"
