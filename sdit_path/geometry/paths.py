@@ -57,9 +57,19 @@ class Run:
         return sum(p.length_mm for p in self.pieces)
 
     def reversed(self, direction: str) -> "Run":
+        """The same curve backwards.  Segments keep their ids; a transit ``A>B``
+        becomes ``B>A``."""
         a, b = self.curve.domain
-        pieces = tuple(PathPiece(p.id, p.kind, a + b - p.u_end, a + b - p.u_start, p.length_mm,
-                                 p.max_radial_deviation_mm) for p in reversed(self.pieces))
+
+        def rename(p: PathPiece) -> str:
+            if p.kind == "transit" and ">" in p.id:
+                start, end = p.id.split(">", 1)
+                return f"{end}>{start}"
+            return p.id
+
+        pieces = tuple(PathPiece(rename(p), p.kind, a + b - p.u_end, a + b - p.u_start,
+                                 p.length_mm, p.max_radial_deviation_mm)
+                       for p in reversed(self.pieces))
         return Run(self.curve.reversed(), pieces, self.end_node, self.start_node, direction)
 
 
