@@ -89,3 +89,46 @@ def plan_command(config: str | None, out_dir: str, force: bool, skip_infeasible:
     out_console.print(table)
     out_console.print(f"wrote {len(files)} files to {out}/ (programs under "
                       f"{', '.join(c + '/' for c in cfg.post.controllers)}, manifest plan.json)")
+
+
+@main.command("preview")
+@click.argument("config", required=False, type=click.Path(dir_okay=False))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Output directory for the pictures (three PNGs per layer).")
+@click.option("--feed", "feed", type=float, default=None,
+              help="Preview at this feed (mm/min) instead of the config's.")
+@click.option("--force", is_flag=True, help="Replace the content of a non-empty DIR.")
+@click.option("--skip-infeasible", is_flag=True, help="As for plan.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress.")
+def preview_command(config: str | None, out_dir: str, feed: float | None, force: bool,
+                    skip_infeasible: bool, quiet: bool) -> None:
+    """Feed-profile pictures per layer: path speed over time, per-axis velocity,
+    acceleration and jerk against their limits, and the hemisphere coloured by speed."""
+    import dataclasses
+
+    from .config import load_config
+    from .errors import ConfigError
+    from .output import write_tree
+    from .pipeline import plan, step_count
+    from .report.preview import preview_files
+
+    console = Console(stderr=True, quiet=quiet)
+    try:
+        cfg = load_config(config)
+        if feed is not None:
+            if not feed > 0:
+                raise ConfigError("--feed", f"expected a feed > 0 mm/min, got {feed:g}")
+            cfg = dataclasses.replace(cfg, test=dataclasses.replace(cfg.test, feed_mm_per_min=feed))
+        with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
+                      console=console, transient=True,
+                      disable=quiet or not console.is_terminal) as bar:
+            task = bar.add_task("planning", total=step_count(cfg) + len(cfg.test.track_elevations_deg))
+            step = lambda msg: bar.update(task, advance=1, description=msg)  # noqa: E731
+            result = plan(cfg, on_step=step, skip_infeasible=skip_infeasible)
+            files = preview_files(result, on_step=step)
+        out = write_tree(out_dir, files, force=force)
+    except SditError as exc:
+        _fail(exc)
+        return
+    if not quiet:
+        Console().print(f"wrote {len(files)} pictures to {out}/")

@@ -16,16 +16,18 @@ from pathlib import Path
 from .errors import OutputError
 
 
-def _write(path: Path, text: str) -> None:
+def _write(path: Path, content: str | bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", encoding="ascii", newline="\n") as fh:
-        fh.write(text)
+    data = content if isinstance(content, bytes) else content.encode("ascii")
+    with open(path, "wb") as fh:
+        fh.write(data)
         fh.flush()
         os.fsync(fh.fileno())
 
 
-def write_tree(out_dir: str | os.PathLike, files: dict[str, str], force: bool = False) -> Path:
-    """Write ``files`` (relative path -> text) as the whole content of ``out_dir``.
+def write_tree(out_dir: str | os.PathLike, files: dict[str, str | bytes],
+               force: bool = False) -> Path:
+    """Write ``files`` (relative path -> text or bytes) as the whole content of ``out_dir``.
 
     Refuses a non-empty ``out_dir`` unless ``force``; with ``force`` its old content
     is replaced as a whole.

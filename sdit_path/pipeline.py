@@ -83,9 +83,11 @@ def check_layer(path: LayerPath, config: Config, kin: Kinematics, scene: Scene
             if key not in worst or x.overshoot > worst[key].overshoot:
                 worst[key] = x
         c = clear.get(pid)
-        checks.append(PieceCheck(pid, kinds[pid], tuple(worst.values()),
+        hard = tuple(x for x in worst.values() if x.kind != "rotary_rate")
+        soft = tuple(x for x in worst.values() if x.kind == "rotary_rate")
+        checks.append(PieceCheck(pid, kinds[pid], hard,
                                  None if c is None else c.value_mm, None if c is None else c.pair,
-                                 None if c is None else c.ball_mm))
+                                 None if c is None else c.ball_mm, soft))
     return poses, tuple(checks)
 
 

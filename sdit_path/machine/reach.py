@@ -37,8 +37,10 @@ class Violation:
             return (f"{self.subject} {self.value:.3f} {self.unit} exceeds its limit {self.limit:g} "
                     f"{self.unit} by {self.overshoot:.3f} {self.unit} at ball {at}")
         if self.kind == "rotary_rate":
-            return (f"{self.subject} would turn at {self.value:.1f} {self.unit}, over its limit "
-                    f"{self.limit:g} {self.unit} (near a singularity) at ball {at}")
+            return (f"{self.subject} would turn at {self.value:.1f} {self.unit} at the programmed "
+                    f"feed, over its limit {self.limit:g} {self.unit} (near a singularity of the "
+                    f"schedule) at ball {at}: the timed path slows to "
+                    f"{100 * self.limit / self.value:.0f}% of the feed there")
         return (f"collision {self.subject}: clearance {round(self.value, 3) + 0.0:.3f} mm < "
                 f"{self.limit:g} mm safety at ball {at}{self.detail}")
 
@@ -53,6 +55,7 @@ class PieceCheck:
     min_clearance_mm: float | None = None
     clearance_pair: tuple[str, str] | None = None
     clearance_point_mm: tuple[float, float, float] | None = None
+    warnings: tuple[Violation, ...] = ()
 
     @property
     def feasible(self) -> bool:
@@ -64,7 +67,11 @@ def _point(p) -> tuple[float, float, float]:
 
 
 def reach_violations(poses: RunPoses, config: Config, kin: Kinematics) -> dict[int, list[Violation]]:
-    """Travel, angle and rotary-rate violations per piece index of one run."""
+    """Travel and angle violations, and rotary-rate warnings, per piece index of one run.
+
+    A rotary axis that would turn faster than its limit at the programmed feed is a
+    warning (``kind == "rotary_rate"``), not an infeasibility: the control, and the
+    timed trajectory, slow the path down there."""
     out: dict[int, list[Violation]] = {}
     margin_lin = config.check.travel_margin_mm
     margin_rot = config.check.angle_margin_rad

@@ -49,7 +49,8 @@ def manifest(result: PlanResult) -> dict:
         c = checks.get(pid)
         if c is None:
             return {}
-        out = {"feasible": c.feasible, "violations": [v.describe() for v in c.violations]}
+        out = {"feasible": c.feasible, "violations": [v.describe() for v in c.violations],
+               "warnings": [v.describe() for v in c.warnings]}
         if c.min_clearance_mm is not None:
             out["min_clearance_mm"] = round(c.min_clearance_mm, 4) + 0.0
             out["clearance_pair"] = list(c.clearance_pair)

@@ -7,17 +7,23 @@ With ``s`` the ball's arc length in the table frame and ``q_i(s)`` an axis value
     d3q_i/dt3  = q_i''' v^3 + 3 q_i'' v a + q_i' j
 
 for path speed ``v``, acceleration ``a`` and jerk ``j``.  A run is timed with constant
-path limits (v_max, a_max, j_max); they are chosen so that the worst point of the run,
-at any |v| <= v_max, |a| <= a_max, |j| <= j_max, keeps every axis within its limits:
-curvature may use ``curvature_share`` of an axis' acceleration budget and the
-curvature terms ``jerk_share`` of its jerk budget each, which caps v_max where the path
-is tightly curved (or where a rotary axis turns fast); the rest goes to a_max and
-j_max.
+path limits (v_max, a_max, j_max) such that, with ``m_k`` the largest ``|q_i^(k)|``
+over the run,
+
+    m1 v_max                                   <= V_i
+    m2 v_max^2 + m1 a_max                      <= A_i
+    m3 v_max^3 + 3 m2 v_max a_max + m1 j_max   <= J_i
+
+for every axis, at any |v| <= v_max, |a| <= a_max, |j| <= j_max.  Tight curvature (or
+a fast-turning rotary axis) eats into the acceleration and jerk budgets as v_max
+grows, so for a whole stretch v_max is not simply the largest feasible one: the triple
+is chosen to minimise its time estimate ``L/v + v/a + a/j``.  Runs are cut into short
+windows that each cruise near their own cap; the speed changes between them are
+scheduled by :func:`~sdit_path.timing.profile.plan_chain`.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +32,8 @@ import numpy as np
 @dataclass(frozen=True, slots=True)
 class PathLimits:
     """Constant limits of one run along arc length (mm/s, mm/s^2, mm/s^3); ``binding``
-    names what set v_max (``feed``, or ``<axis> velocity/curvature/jerk``)."""
+    names what set v_max (``feed``, ``<axis> velocity``, or ``<axis> curvature`` when
+    an axis' acceleration or jerk budget made a lower speed faster overall)."""
 
     v_max: float
     a_max: float
@@ -36,24 +43,106 @@ class PathLimits:
 
 def path_limits(d1: np.ndarray, d2: np.ndarray, d3: np.ndarray, v_limit: np.ndarray,
                 a_limit: np.ndarray, j_limit: np.ndarray, names: tuple[str, ...], feed: float,
-                curvature_share: float = 0.5, jerk_share: float = 0.25) -> PathLimits:
+                length_mm: float | None = None, cruise_share: float = 0.95) -> PathLimits:
     """Limits from the path derivatives ``d1, d2, d3 : (n, n_axes)`` (d/ds of the axis
-    values on a grid along the run) and per-axis limits ``(n_axes,)``."""
-    m1 = np.abs(d1).max(axis=0)
+    values on a grid along a stretch) and per-axis limits ``(n_axes,)``.
+
+    With ``length_mm`` (a whole rest-to-rest stretch) the triple minimising the time
+    estimate is searched; without it (a window inside a run, where the speed changes
+    are scheduled across windows) the window cruises at its highest speed, kept at
+    ``cruise_share`` of a curvature cap so some budget is left to change speed."""
+    tiny = 1e-12
+    m1 = np.maximum(np.abs(d1).max(axis=0), tiny)
     m2 = np.abs(d2).max(axis=0)
     m3 = np.abs(d3).max(axis=0)
-    tiny = 1e-12
     caps = {"feed": feed}
     for i, n in enumerate(names):
-        caps[f"{n} velocity"] = v_limit[i] / max(m1[i], tiny)
-        caps[f"{n} curvature"] = math.sqrt(curvature_share * a_limit[i] / max(m2[i], tiny))
-        caps[f"{n} jerk"] = (jerk_share * j_limit[i] / max(m3[i], tiny)) ** (1.0 / 3.0)
+        caps[f"{n} velocity"] = v_limit[i] / m1[i]
+        if m2[i] > tiny:
+            caps[f"{n} curvature"] = 0.999 * np.sqrt(a_limit[i] / m2[i])
+        if m3[i] > tiny:
+            caps[f"{n} curvature"] = min(caps.get(f"{n} curvature", np.inf),
+                                         0.999 * np.cbrt(j_limit[i] / m3[i]))
+    first = min(caps, key=caps.get)
+    v_hi = caps[first]
+    if "curvature" in first:
+        # a window near its curvature cap keeps a margin for changing speed
+        v_hi *= cruise_share
+    best = None
+    candidates = [v_hi] if length_mm is None else v_hi * np.geomspace(1.0, 0.02, 60)
+    for v in candidates:
+        a_acc = np.min((a_limit - m2 * v * v) / m1)
+        rest = j_limit - m3 * v ** 3
+        if a_acc <= 0 or np.any(rest <= 0):
+            continue
+        for share in (0.1, 0.25, 0.5, 0.75, 0.9):
+            a_jerk = np.min(np.where(m2 > tiny, share * rest / np.maximum(3.0 * m2 * v, tiny), np.inf))
+            a = min(a_acc, a_jerk)
+            j = np.min((rest - 3.0 * m2 * v * a) / m1)
+            if a <= 0 or j <= 0:
+                continue
+            time = (length_mm or 0.0) / v + v / a + a / j
+            if best is None or time < best[0]:
+                best = (time, v, a, j)
+    if best is None:
+        raise ValueError("no feasible path limits")
+    _, v, a, j = best
+    binding = first if v >= v_hi * (1 - 1e-9) else f"{first} (lowered to save acceleration)"
+    return PathLimits(float(v), float(a), float(j), binding)
+
+
+@dataclass(frozen=True, slots=True)
+class Budget:
+    """What a stretch of path leaves of the axes' budgets at a given path speed.
+
+    ``m1, m2, m3 : (n_axes,)`` are the largest first, second and third derivatives of
+    the axis values along the stretch; ``v_cap`` the highest speed it allows (feed, axis
+    velocity, or 95 % of the speed at which curvature alone would use an axis' whole
+    acceleration or jerk)."""
+
+    m1: np.ndarray
+    m2: np.ndarray
+    m3: np.ndarray
+    a_limit: np.ndarray
+    j_limit: np.ndarray
+    v_cap: float
+    binding: str
+    jerk_share: float = 0.5
+
+    def at(self, v: float) -> tuple[float, float]:
+        """Path acceleration and jerk limits usable at path speeds up to ``v``."""
+        v = min(max(v, 0.0), self.v_cap)
+        a_acc = float(np.min((self.a_limit - self.m2 * v * v) / self.m1))
+        rest = self.j_limit - self.m3 * v ** 3
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a_jerk = float(np.min(np.where(self.m2 * v > 1e-12,
+                                           self.jerk_share * rest / (3.0 * self.m2 * v), np.inf)))
+        a = min(a_acc, a_jerk)
+        j = float(np.min((rest - 3.0 * self.m2 * v * a) / self.m1))
+        return a, j
+
+    def limits(self, v: float) -> PathLimits:
+        a, j = self.at(v)
+        return PathLimits(float(v), a, j, self.binding)
+
+
+def budget(d1: np.ndarray, d2: np.ndarray, d3: np.ndarray, v_limit: np.ndarray,
+           a_limit: np.ndarray, j_limit: np.ndarray, names: tuple[str, ...], feed: float,
+           cruise_share: float = 0.95) -> Budget:
+    """The :class:`Budget` of a stretch from its axis derivatives ``(n, n_axes)``."""
+    tiny = 1e-12
+    m1 = np.maximum(np.abs(d1).max(axis=0), tiny)
+    m2 = np.abs(d2).max(axis=0)
+    m3 = np.abs(d3).max(axis=0)
+    caps = {"feed": feed}
+    for i, n in enumerate(names):
+        caps[f"{n} velocity"] = v_limit[i] / m1[i]
+        cap = np.inf
+        if m2[i] > tiny:
+            cap = min(cap, np.sqrt(a_limit[i] / m2[i]))
+        if m3[i] > tiny:
+            cap = min(cap, np.cbrt(j_limit[i] / m3[i]))
+        caps[f"{n} curvature"] = cruise_share * cap
     binding = min(caps, key=caps.get)
-    v = caps[binding]
-    # acceleration: what curvature leaves, and what the 3 q'' v a jerk term may take
-    a_caps = [(a_limit[i] - m2[i] * v * v) / max(m1[i], tiny) for i in range(len(names))]
-    a_caps += [jerk_share * j_limit[i] / max(3.0 * m2[i] * v, tiny) for i in range(len(names))]
-    a = min(a_caps)
-    j = min((j_limit[i] - m3[i] * v ** 3 - 3.0 * m2[i] * v * a) / max(m1[i], tiny)
-            for i in range(len(names)))
-    return PathLimits(v, a, j, binding)
+    return Budget(m1, m2, m3, np.asarray(a_limit, dtype=float), np.asarray(j_limit, dtype=float),
+                  float(caps[binding]), binding)

@@ -77,3 +77,148 @@ def plan_profile(length_mm: float, limits: PathLimits, label: str = "run") -> Pr
     t0 = np.concatenate([[0.0], np.cumsum(durations)])
     return Profile(float(length_mm), limits, frozen(t0), frozen(prof.p[:7]), frozen(prof.v[:7]),
                    frozen(prof.a[:7]), frozen(prof.j[:7]))
+
+
+def change_distance(v1: float, v2: float, a: float, j: float) -> float:
+    """Path length a jerk-limited change from speed v1 to v2 takes (zero acceleration at
+    both ends): the profile is symmetric, so its mean speed is (v1 + v2) / 2."""
+    dv = abs(v2 - v1)
+    t = dv / a + a / j if dv * j >= a * a else 2.0 * np.sqrt(dv / j)
+    return 0.5 * (v1 + v2) * t
+
+
+def _reachable(v_from: float, length: float, budget, cap: float, slack: float) -> float:
+    """Largest speed <= cap that can be changed to or from ``v_from`` within ``length``,
+    with the window's budget at the higher of the two speeds."""
+    def fits(v: float) -> bool:
+        a, j = budget.at(max(v, v_from))
+        return a > 0 and j > 0 and change_distance(v_from, v, a * slack, j * slack) <= length
+
+    if fits(cap):
+        return cap
+    lo, hi = min(v_from, cap), cap
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        if fits(mid):
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def _peak(v0: float, v1: float, length: float, budget, slack: float) -> float:
+    """Highest speed a window can reach between boundary speeds v0 and v1."""
+    def fits(v: float) -> bool:
+        a, j = budget.at(v)
+        return a > 0 and j > 0 and (change_distance(v0, v, a * slack, j * slack)
+                                    + change_distance(v, v1, a * slack, j * slack)) <= length
+
+    lo, hi = max(v0, v1), budget.v_cap
+    if fits(hi):
+        return hi
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        if fits(mid):
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def plan_state(length_mm: float, v_start: float, v_end: float, limits: PathLimits,
+               label: str) -> Profile:
+    """ruckig from (0, v_start, 0) to (length, v_end, 0) under ``limits``."""
+    otg = Ruckig(1)
+    inp = InputParameter(1)
+    inp.current_position = [0.0]
+    inp.current_velocity = [float(v_start)]
+    inp.current_acceleration = [0.0]
+    inp.target_position = [float(length_mm)]
+    inp.target_velocity = [float(v_end)]
+    inp.target_acceleration = [0.0]
+    inp.max_velocity = [max(limits.v_max, v_start, v_end)]
+    inp.max_acceleration = [limits.a_max]
+    inp.max_jerk = [limits.j_max]
+    inp.min_velocity = [0.0]
+    traj = Trajectory(1)
+    try:
+        result = otg.calculate(inp, traj)
+    except RuntimeError as exc:
+        raise PlanError(f"{label}: ruckig could not time the run: {exc}") from None
+    if result not in (Result.Working, Result.Finished):
+        raise PlanError(f"{label}: ruckig could not time the run ({result})")
+    prof = traj.profiles[0][0]
+    t0 = np.concatenate([[0.0], np.cumsum(np.array(prof.t, dtype=float))])
+    return Profile(float(length_mm), limits, frozen(t0), frozen(prof.p[:7]), frozen(prof.v[:7]),
+                   frozen(prof.a[:7]), frozen(prof.j[:7]))
+
+
+@dataclass(frozen=True, slots=True)
+class ChainProfile:
+    """Consecutive window profiles of one run: ``s0``/``t0`` where each starts."""
+
+    parts: tuple[Profile, ...]
+    s0: np.ndarray
+    t0: np.ndarray
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t0[-1] + self.parts[-1].duration_s)
+
+    @property
+    def length_mm(self) -> float:
+        return float(self.s0[-1] + self.parts[-1].length_mm)
+
+    @property
+    def limits(self) -> PathLimits:
+        """The limits of the slowest window (what bound the run most)."""
+        return min((p.limits for p in self.parts), key=lambda x: x.v_max)
+
+    def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, ...]:
+        t = np.clip(np.asarray(t, dtype=float), 0.0, self.duration_s)
+        k = np.clip(np.searchsorted(self.t0, t, side="right") - 1, 0, len(self.parts) - 1)
+        s = np.empty_like(t)
+        v, a, j = np.empty_like(t), np.empty_like(t), np.empty_like(t)
+        for w in np.unique(k):
+            sel = k == w
+            sw, vw, aw, jw, _ = self.parts[w].evaluate(t[sel] - self.t0[w])
+            s[sel], v[sel], a[sel], j[sel] = sw + self.s0[w], vw, aw, jw
+        eps = 1e-6 * max(1.0, float(np.abs(a).max()) if a.size else 1.0)
+        phase = np.where(a > eps, 0, np.where(a < -eps, 6, 3))
+        return s, v, a, j, phase
+
+
+def _boundary_speeds(windows: list[tuple[float, object]], slack: float) -> np.ndarray:
+    """Backward and forward reachability passes over the windows' budgets."""
+    n = len(windows)
+    caps = [min(windows[k - 1][1].v_cap, windows[k][1].v_cap) for k in range(1, n)]
+    vb = np.array([0.0] + caps + [0.0])
+    for k in range(n - 1, -1, -1):  # backward: able to slow down in time
+        length, bud = windows[k]
+        vb[k] = min(vb[k], _reachable(vb[k + 1], length, bud, vb[k], slack))
+    for k in range(n):  # forward: able to speed up in time
+        length, bud = windows[k]
+        vb[k + 1] = min(vb[k + 1], _reachable(vb[k], length, bud, vb[k + 1], slack))
+    return vb
+
+
+def plan_chain(windows: list[tuple[float, object]], label: str,
+               slack: float = 0.98) -> ChainProfile:
+    """Rest-to-rest over consecutive windows ``(length, budget)``.
+
+    Boundary speeds come from backward and forward reachability passes, each window's
+    acceleration and jerk taken at the speed it runs; ruckig then plans window by
+    window with the budget at the highest speed each reaches (zero acceleration at the
+    window boundaries, which costs a little where a speed change spans several)."""
+    vb = _boundary_speeds(windows, slack)
+    parts, s0, t0 = [], [], []
+    s = t = 0.0
+    for k, (length, bud) in enumerate(windows):
+        top = _peak(vb[k], vb[k + 1], length, bud, slack)
+        prof = plan_state(length, vb[k], vb[k + 1], bud.limits(top), label)
+        parts.append(prof)
+        s0.append(s)
+        t0.append(t)
+        s += length
+        t += prof.duration_s
+    return ChainProfile(tuple(parts), frozen(s0), frozen(t0))
