@@ -1,0 +1,31 @@
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import matplotlib.image as mpimg
+import numpy as np
+
+from conftest import DATA
+
+
+def test_preview_writes_three_readable_pictures_per_layer(tmp_path):
+    out = tmp_path / "prev"
+    r = subprocess.run([sys.executable, "-m", "sdit_path", "preview", str(DATA / "golden_small.toml"),
+                        "--out", str(out), "--feed", "3000", "-q"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(f"GOLD_{layer}_{kind}.png" for layer in "AB"
+                           for kind in ("speed", "axes", "hemisphere"))
+    for p in out.iterdir():
+        data = p.read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n"
+        img = mpimg.imread(p)
+        assert img.shape[0] > 300 and img.shape[1] > 600
+        assert np.std(img[..., :3]) > 0.05            # not a blank canvas
+
+
+def test_preview_rejects_a_bad_feed(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "sdit_path", "preview", "--out", str(tmp_path / "x"),
+                        "--feed", "-5"], capture_output=True, text=True)
+    assert r.returncode == 2 and "--feed: expected a feed > 0" in r.stderr
