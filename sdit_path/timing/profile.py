@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from ruckig import InputParameter, Result, Ruckig, Trajectory
+from ruckig import InputParameter, Result, Ruckig, RuckigError, Trajectory
 
 from ..arrays import frozen
 from ..errors import PlanError
@@ -68,7 +68,7 @@ def plan_profile(length_mm: float, limits: PathLimits, label: str = "run") -> Pr
     traj = Trajectory(1)
     try:
         result = otg.calculate(inp, traj)
-    except RuntimeError as exc:  # ruckig raises on invalid input
+    except (RuntimeError, RuckigError) as exc:  # ruckig raises on invalid input
         raise PlanError(f"{label}: ruckig could not time the run: {exc}") from None
     if result not in (Result.Working, Result.Finished):
         raise PlanError(f"{label}: ruckig could not time the run ({result})")
@@ -143,7 +143,7 @@ def plan_state(length_mm: float, v_start: float, v_end: float, limits: PathLimit
     traj = Trajectory(1)
     try:
         result = otg.calculate(inp, traj)
-    except RuntimeError as exc:
+    except (RuntimeError, RuckigError) as exc:
         raise PlanError(f"{label}: ruckig could not time the run: {exc}") from None
     if result not in (Result.Working, Result.Finished):
         raise PlanError(f"{label}: ruckig could not time the run ({result})")
