@@ -9,6 +9,7 @@ from __future__ import annotations
 import sys
 
 import click
+import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
@@ -62,6 +63,7 @@ def plan_command(config: str | None, out_dir: str, force: bool, skip_infeasible:
             files.update(trajectory_files(
                 result, on_step=lambda msg: bar.update(task, advance=1, description=msg)))
         files["plan.json"] = manifest_text(result)
+        files["config.toml"] = cfg.text  # later stages rebuild the machine from it
         out = write_tree(out_dir, files, force=force)
     except SditError as exc:
         _fail(exc)
@@ -132,3 +134,52 @@ def preview_command(config: str | None, out_dir: str, feed: float | None, force:
         return
     if not quiet:
         Console().print(f"wrote {len(files)} pictures to {out}/")
+
+
+def _floats(text: str, n: int, name: str) -> tuple[float, ...]:
+    from .errors import ConfigError
+
+    try:
+        values = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise ConfigError(name, f"expected {n} comma-separated numbers, got {text!r}") from None
+    if len(values) != n:
+        raise ConfigError(name, f"expected {n} comma-separated numbers, got {len(values)}")
+    return values
+
+
+@main.command("simulate")
+@click.option("--plan", "plan_dir", required=True, type=click.Path(file_okay=False),
+              help="A directory written by sdit-path plan.")
+@click.option("--program", required=True, help="Program name, e.g. SDIT_A.")
+@click.option("--errors", "errors_file", required=True,
+              help="Error-set TOML, or a bundled one: paper_table2, five_axis_location.")
+@click.option("--centring-um", default="0,0,0", show_default=True,
+              help="Pivot ball centring offset x,y,z (um, table frame).")
+@click.option("--bar-offset-um", default=0.0, show_default=True, help="Bar length offset (um).")
+@click.option("--noise-um", default=0.0, show_default=True, help="Sensor noise, 1 sigma (um).")
+@click.option("--quantisation-um", default=0.1, show_default=True, help="Instrument resolution (um).")
+@click.option("--seed", default=0, show_default=True, help="Noise seed.")
+@click.option("--out", "out_file", required=True, type=click.Path(dir_okay=False),
+              help="Trace CSV to write.")
+def simulate_command(plan_dir, program, errors_file, centring_um, bar_offset_um, noise_um,
+                     quantisation_um, seed, out_file) -> None:
+    """Simulate the ballbar trace of PROGRAM for an error set."""
+    from .errormodel.errorset import load_error_set
+    from .output import write_file
+    from .planfiles import load_plan
+    from .sim.simulate import simulate_trace, trace_csv
+
+    try:
+        plan = load_plan(plan_dir)
+        errors = load_error_set(errors_file)
+        trace = simulate_trace(plan, program, errors, _floats(centring_um, 3, "--centring-um"),
+                               bar_offset_um, noise_um, quantisation_um, seed)
+        write_file(out_file, trace_csv(trace))
+    except SditError as exc:
+        _fail(exc)
+        return
+    finite = np.isfinite(trace.delta_l_um)
+    click.echo(f"wrote {out_file}: {int(finite.sum())} samples over {trace.t_s[-1]:.1f} s, "
+               f"delta L {np.nanmin(trace.delta_l_um):.2f} .. {np.nanmax(trace.delta_l_um):.2f} um "
+               f"({errors.name})")

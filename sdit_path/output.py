@@ -69,3 +69,27 @@ def write_tree(out_dir: str | os.PathLike, files: dict[str, str | bytes],
     if backup is not None:
         shutil.rmtree(backup, ignore_errors=True)
     return out
+
+
+def write_file(path: str | os.PathLike, content: str | bytes, force: bool = True) -> Path:
+    """Write one file atomically (temporary file in the same folder, then rename)."""
+    target = Path(path)
+    if target.exists() and not force:
+        raise OutputError(f"{target}: exists; pass --force to replace it")
+    if target.is_dir():
+        raise OutputError(f"{target}: is a directory")
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    except OSError as exc:
+        raise OutputError(f"{target}: cannot write: {exc.strerror}") from None
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(content if isinstance(content, bytes) else content.encode("utf-8"))
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return target

@@ -140,7 +140,24 @@ def manifest(result: PlanResult) -> dict:
         "transits": transits,
         "programs": programs,
         "summary": summary,
+        "tested_travel": _tested_travel(result),
     }
+
+
+def _tested_travel(result: PlanResult) -> dict[str, list[float]]:
+    """Range of every linear axis over all checked poses (mm): the interval the
+    error model's Legendre bases are scaled to."""
+    import numpy as np
+
+    from ..machine.kinematics import Kinematics
+
+    kin = Kinematics(result.config.machine)
+    qs = [rp.q for la in result.layers for rp in la.poses]
+    if not qs:
+        return {}
+    q = np.vstack(qs)
+    return {kin.names[i]: [round(float(q[:, i].min()), 6), round(float(q[:, i].max()), 6)]
+            for i in kin.linear}
 
 
 def manifest_text(result: PlanResult) -> str:

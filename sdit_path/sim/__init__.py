@@ -1,0 +1,1 @@
+"""Simulation stage: the ballbar reading along a timed trajectory."""
