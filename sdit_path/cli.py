@@ -183,3 +183,58 @@ def simulate_command(plan_dir, program, errors_file, centring_um, bar_offset_um,
     click.echo(f"wrote {out_file}: {int(finite.sum())} samples over {trace.t_s[-1]:.1f} s, "
                f"delta L {np.nanmin(trace.delta_l_um):.2f} .. {np.nanmax(trace.delta_l_um):.2f} um "
                f"({errors.name})")
+
+
+@main.command("identify")
+@click.option("--plan", "plan_dirs", multiple=True, required=True, type=click.Path(file_okay=False),
+              help="Plan directory; repeat to pair with each --trace (one = all traces).")
+@click.option("--trace", "traces", multiple=True, required=True, type=click.Path(dir_okay=False),
+              help="Trace CSV; repeat to combine set-ups, feeds, directions.")
+@click.option("--program", "programs", multiple=True,
+              help="Program of each trace (default: the trace's '# program:' line).")
+@click.option("--linear-order", default=0, show_default=True,
+              help="Legendre degree of linear-axis errors (0 = constants).")
+@click.option("--linear-basis", type=click.Choice(["legendre", "table"]), default="legendre",
+              show_default=True)
+@click.option("--rotary-order", default=0, show_default=True, help="Fourier harmonics of rotary errors.")
+@click.option("--no-squareness", is_flag=True, help="Leave squareness out of the model.")
+@click.option("--no-location", is_flag=True, help="Leave rotary location errors out.")
+@click.option("--prior", is_flag=True,
+              help="Also give every ISO parameter under a Tikhonov prior, labelled data- or prior-driven.")
+@click.option("--ask", multiple=True, help="A parameter you need: say what would make it identifiable.")
+@click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Write the full report.")
+def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, rotary_order,
+                     no_squareness, no_location, prior, ask, json_out) -> None:
+    """Identify what the traces determine about the machine's geometric errors."""
+    import json
+
+    from .errormodel.model import ModelOptions
+    from .errors import ConfigError
+    from .identify.identify import identify
+    from .identify.summary import summary_text
+    from .output import write_file
+    from .planfiles import load_plan
+    from .sim.traceio import read_trace
+
+    try:
+        if len(plan_dirs) not in (1, len(traces)):
+            raise ConfigError("--plan", f"give one plan, or one per trace ({len(traces)})")
+        if programs and len(programs) != len(traces):
+            raise ConfigError("--program", f"give one program per trace ({len(traces)})")
+        plans = [load_plan(d) for d in plan_dirs]
+        experiments = []
+        for k, path in enumerate(traces):
+            trace = read_trace(path)
+            prog = programs[k] if programs else trace.header.get("program")
+            if not prog:
+                raise ConfigError(path, "no '# program:' line; pass --program")
+            experiments.append((plans[k if len(plans) > 1 else 0], prog, trace))
+        options = ModelOptions(linear_basis, linear_order, rotary_order, not no_squareness,
+                               not no_location)
+        report = identify(experiments, options, prior=prior, ask=tuple(ask))
+        if json_out:
+            write_file(json_out, json.dumps(report, indent=2) + "\n")
+    except SditError as exc:
+        _fail(exc)
+        return
+    click.echo(summary_text(report))

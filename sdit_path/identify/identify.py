@@ -1,0 +1,347 @@
+"""Honest identification: only what the data determine, with uncertainties.
+
+Per trace (an experiment) the bar readings ``y`` are modelled as ``J theta + N n``:
+``J`` the first-order sensitivities to the error parameters (columns scaled by their
+prior magnitudes, so that a unit in any direction means "a typical error"), ``N`` the
+set-up nuisances of that mounting (ball centring x, y, z and bar length), which are
+always unknown.  Everything is accumulated as Gram matrices, so a full hemisphere at
+1 kHz costs a few small matrices.  The nuisances are eliminated (Schur complement);
+the eigen-decomposition of what remains gives the parameter combinations the data
+see, each with its standard uncertainty ``sigma / sqrt(lambda)``.
+
+* A combination is **determined** when its standard uncertainty is below half the
+  prior magnitude; only those are reported as numbers, never more than the rank.
+* A parameter is **individually identifiable** when it lies (to 1e-6) in the span of
+  the determined combinations; otherwise it is reported as aliased.
+* With ``prior=True`` every parameter gets a Tikhonov estimate and is labelled by its
+  resolution-matrix diagonal: data-determined (> 0.9), prior-driven (< 0.1) or partly.
+* For a parameter asked about that is not identifiable, candidate additional set-ups
+  (a second pivot height, another tool length, moving rotary axes) are simulated and
+  their combined information is tested: the answer is computed, not written.
+* Observability indices (Borm & Menq O1, Nahvi & Hollerbach O4) of the determined
+  subspace are given per layer and per segment, for experiment design.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..config import Config
+from ..errormodel.chain import sensitivities
+from ..errormodel.model import ErrorModel, ModelOptions, build_model, prior_scale
+from ..errors import ConfigError
+from ..machine.kinematics import Kinematics
+from ..machine.schedule import RotarySchedule
+from ..planfiles import PlanFiles
+from ..sim.simulate import Trace, axis_values_rad
+
+DETERMINED = 0.5  # standard uncertainty below this share of the prior magnitude
+
+
+@dataclass
+class Gram:
+    """Accumulated normal equations of one experiment (scaled parameters ``x``)."""
+
+    A: np.ndarray  # J^T J
+    B: np.ndarray  # J^T N
+    C: np.ndarray  # N^T N
+    b: np.ndarray  # J^T y
+    c: np.ndarray  # N^T y
+    yy: float
+    m: int
+    segments: dict = field(default_factory=dict)  # id -> (J^T J, count)
+    layers: dict = field(default_factory=dict)
+
+
+def _nuisance_columns(u: np.ndarray) -> np.ndarray:
+    # centring: the pivot ball sits at pivot + d, the bar reads -u.d; bar length: +1
+    return np.column_stack([-u, np.ones(len(u))])
+
+
+def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: ErrorModel,
+                    kin: Kinematics | None = None, q: np.ndarray | None = None,
+                    pivot: np.ndarray | None = None, weight: float = 1.0,
+                    chunk: int = 200_000) -> Gram:
+    """Gram matrices of one experiment.  With ``trace`` the readings come from it
+    (matched to the trajectory by time); without, only the design (y = 0) - used to
+    evaluate candidate set-ups.  ``q``/``pivot`` override the poses (candidates)."""
+    cfg = plan.config
+    kin = kin or Kinematics(cfg.machine)
+    traj = plan.trajectory(program)
+    pivot = np.array(cfg.ballbar.pivot_mm) if pivot is None else pivot
+    if q is None:
+        q = axis_values_rad(traj, kin)
+    segment, phase = traj.segment, traj.phase
+    y = np.zeros(len(q))
+    valid = phase != "reposition"
+    if trace is not None:
+        rate = 1.0 / float(np.median(np.diff(traj.t_s)))
+        idx = np.rint(trace.t_s * rate).astype(int)
+        inside = (idx >= 0) & (idx < len(q))
+        y_full = np.full(len(q), np.nan)
+        y_full[idx[inside]] = trace.delta_l_um[inside]
+        y = y_full
+        valid &= np.isfinite(y)
+    rows = np.flatnonzero(valid)
+    scale = np.array([prior_scale(p) for p in model.parameters])
+    n_p = len(model.parameters)
+    g = Gram(np.zeros((n_p, n_p)), np.zeros((n_p, 4)), np.zeros((4, 4)), np.zeros(n_p),
+             np.zeros(4), 0.0, 0)
+    for start in range(0, len(rows), chunk):
+        sel = rows[start:start + chunk]
+        J = sensitivities(kin, model, q[sel], pivot) * scale
+        p_nom = kin.forward(q[sel])
+        d = np.linalg.norm(p_nom - pivot, axis=1)
+        u = (p_nom - pivot) / d[:, None]
+        yy = y[sel] - (d - cfg.ballbar.bar_length_mm) * 1e3 if trace is not None else y[sel]
+        N = _nuisance_columns(u)
+        g.A += weight * J.T @ J
+        g.B += weight * J.T @ N
+        g.C += weight * N.T @ N
+        g.b += weight * J.T @ yy
+        g.c += weight * N.T @ yy
+        g.yy += weight * float(yy @ yy)
+        g.m += len(sel)
+        for sid in np.unique(segment[sel]):
+            if phase[sel][segment[sel] == sid][0] == "dwell":
+                continue
+            rs = segment[sel] == sid
+            Js = J[rs]
+            a, n = g.segments.get(sid, (0.0, 0))
+            g.segments[sid] = (a + Js.T @ Js, n + int(rs.sum()))
+        lay = program
+        a, n = g.layers.get(lay, (0.0, 0))
+        g.layers[lay] = (a + weight * J.T @ J, n + len(sel))
+    return g
+
+
+def _schur(grams: list[Gram]) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """Parameter block with every experiment's nuisances eliminated."""
+    S = sum(g.A for g in grams)
+    r = sum(g.b for g in grams)
+    yy = 0.0
+    m = 0
+    for g in grams:
+        Ci = np.linalg.pinv(g.C)
+        S = S - g.B @ Ci @ g.B.T
+        r = r - g.B @ Ci @ g.c
+        yy += g.yy - g.c @ Ci @ g.c
+        m += g.m
+    return 0.5 * (S + S.T), r, yy, m
+
+
+@dataclass(frozen=True, slots=True)
+class Combination:
+    """``coefficients``: (parameter, coefficient) pairs, largest first, normalised so
+    that the largest is 1; ``estimate``/``std`` in the unit of the leading parameter."""
+
+    coefficients: tuple[tuple[str, float], ...]
+    estimate: float
+    std: float
+    unit: str
+
+    def describe(self) -> str:
+        terms = " ".join(f"{'+' if c >= 0 else '-'} {abs(c):.2f}*{n}" for n, c in self.coefficients)
+        return f"{terms.lstrip('+ ')} = {self.estimate:.3f} +- {self.std:.3f} {self.unit}"
+
+
+def _combination(model: ErrorModel, v: np.ndarray, est: float, std: float,
+                 scale: np.ndarray, cutoff: float = 0.1) -> Combination:
+    # x = theta / scale, so v.x = sum (v_j / scale_j) theta_j
+    coef = v / scale
+    k = int(np.argmax(np.abs(coef)))
+    norm = coef[k]
+    coef = coef / norm
+    order = np.argsort(-np.abs(coef))
+    pairs = tuple((model.parameters[j].name, float(coef[j])) for j in order if abs(coef[j]) >= cutoff)
+    return Combination(pairs, float(est / norm), float(abs(std / norm)), model.parameters[k].unit)
+
+
+def _observability(S_block: np.ndarray, Vd: np.ndarray, count: int) -> dict:
+    if Vd.shape[1] == 0 or count == 0:
+        return {"O1": 0.0, "O4": 0.0, "samples": count}
+    M = Vd.T @ S_block @ Vd
+    sv = np.sqrt(np.clip(np.linalg.eigvalsh(0.5 * (M + M.T)), 0.0, None))
+    L = len(sv)
+    o1 = float(np.exp(np.mean(np.log(np.maximum(sv, 1e-300)))) / math.sqrt(count))
+    o4 = float(sv.min() ** 2 / sv.max()) if sv.max() > 0 else 0.0
+    return {"O1": o1, "O4": o4, "samples": count, "dimensions": L}
+
+
+def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOptions,
+             prior: bool = False, ask: tuple[str, ...] = ()) -> dict:
+    """Identify from one or more traces; returns the report as a plain dict."""
+    plan0 = experiments[0][0]
+    travel = {}
+    for plan, _, _ in experiments:
+        for k, (lo, hi) in plan.tested_travel().items():
+            a, b = travel.get(k, (lo, hi))
+            travel[k] = (min(a, lo), max(b, hi))
+    model = build_model(plan0.config.machine, travel, options)
+    for name in ask:
+        if name not in model.names:
+            raise ConfigError("--ask", f"{name} is not a parameter of this model; parameters: "
+                                       f"{', '.join(model.names)}")
+    scale = np.array([prior_scale(p) for p in model.parameters])
+    grams = [experiment_gram(plan, prog, tr, model) for plan, prog, tr in experiments]
+    S, r, yy, m = _schur(grams)
+    lam, V = np.linalg.eigh(S)
+    order = np.argsort(lam)[::-1]
+    lam, V = lam[order], V[:, order]
+    lam_max = max(float(lam[0]), 1e-300)
+    structural = lam > lam_max * 1e-12
+    rank = int(structural.sum())
+    n_nuis = 4 * len(experiments)
+    proj = V.T @ r
+    rss = yy - float(np.sum(proj[structural] ** 2 / lam[structural]))
+    dof = max(m - rank - n_nuis, 1)
+    sigma = math.sqrt(max(rss, 0.0) / dof)
+    std = np.where(structural, sigma / np.sqrt(np.maximum(lam, 1e-300)), np.inf)
+    determined = structural & (std < DETERMINED)
+    Vd = V[:, determined]
+    est = np.where(determined, proj / np.maximum(lam, 1e-300), 0.0)
+    x_hat = Vd @ est[determined]
+    combos = [_combination(model, V[:, i], est[i], std[i], scale) for i in np.flatnonzero(determined)]
+    individually = []
+    aliased = []
+    for j, p in enumerate(model.parameters):
+        e = np.zeros(len(model.parameters))
+        e[j] = 1.0
+        inside = float(np.sum((Vd.T @ e) ** 2))
+        if inside > 1 - 1e-6:
+            var = float(np.sum(V[j, determined] ** 2 / lam[determined])) * sigma ** 2
+            individually.append({"parameter": p.name, "estimate": float(x_hat[j] * scale[j]),
+                                 "std": float(math.sqrt(var) * scale[j]), "unit": p.unit})
+        else:
+            aliased.append(p.name)
+    # nuisances
+    nuisances = []
+    for (plan, prog, _), g in zip(experiments, grams):
+        n_hat = np.linalg.pinv(g.C) @ (g.c - g.B.T @ x_hat)
+        nuisances.append({"program": prog, "centring_um": [float(v) for v in n_hat[:3]],
+                          "bar_length_um": float(n_hat[3])})
+    # observability of the determined subspace
+    seg_obs, layer_obs = {}, {}
+    for g in grams:
+        for sid, (a, n) in g.segments.items():
+            seg_obs[sid] = _observability(a, Vd, n)
+        for lay, (a, n) in g.layers.items():
+            layer_obs[lay] = _observability(a, Vd, n)
+    report = {
+        "model": {"parameters": len(model.parameters), "options": dataclasses.asdict(options),
+                  "tested_travel_mm": {k: list(v) for k, v in travel.items()}},
+        "samples": m, "experiments": [{"program": p} for _, p, _ in experiments],
+        "noise_std_um": sigma, "residual_rms_um": math.sqrt(max(rss, 0.0) / max(m, 1)),
+        "rank": rank, "determined": int(determined.sum()),
+        "combinations": [{"terms": [{"parameter": n, "coefficient": c} for n, c in cb.coefficients],
+                          "estimate": cb.estimate, "std": cb.std, "unit": cb.unit,
+                          "text": cb.describe()} for cb in combos],
+        "identifiable_parameters": individually,
+        "not_individually_identifiable": aliased,
+        "nuisances": nuisances,
+        "observability": {"layers": layer_obs, "segments": seg_obs},
+    }
+    if prior:
+        report["prior_estimates"] = _prior(model, S, r, sigma, scale)
+    if ask:
+        report["asked"] = [_suggest(name, model, experiments, grams, sigma, individually)
+                           for name in ask]
+    return report
+
+
+def _prior(model: ErrorModel, S: np.ndarray, r: np.ndarray, sigma: float, scale: np.ndarray) -> list:
+    """Tikhonov estimates (prior: each parameter ~ its prior magnitude) with the
+    resolution-matrix diagonal saying whether data or prior drive each number."""
+    s2 = max(sigma, 1e-12) ** 2
+    P = S / s2 + np.eye(len(r))
+    cov = np.linalg.inv(P)
+    x = cov @ (r / s2)
+    R = cov @ (S / s2)
+    out = []
+    for j, p in enumerate(model.parameters):
+        res = float(R[j, j])
+        label = "data-determined" if res > 0.9 else "prior-driven" if res < 0.1 else "partly determined"
+        out.append({"parameter": p.name, "estimate": float(x[j] * scale[j]),
+                    "std": float(math.sqrt(cov[j, j]) * scale[j]), "unit": p.unit,
+                    "resolution": res, "label": label})
+    return out
+
+
+def _candidate_poses(plan: PlanFiles, program: str, kind: str, config: Config):
+    """Poses of the same table-frame path under a changed set-up: returns
+    (kinematics, q, pivot, description)."""
+    traj = plan.trajectory(program)
+    kin = Kinematics(config.machine)
+    pivot = np.array(config.ballbar.pivot_mm)
+    pts = traj.ball_mm
+    if kind == "pivot":
+        shift = np.array([0.0, 0.0, 50.0])
+        cfg = dataclasses.replace(config, ballbar=dataclasses.replace(
+            config.ballbar, pivot_mm=tuple(pivot + shift)))
+        sched = RotarySchedule(cfg, kin)
+        angles, _ = sched.angles(pts + shift)
+        return kin, kin.inverse(pts + shift, angles), pivot + shift, "a second pivot height (+50 mm)"
+    if kind == "tool":
+        machine = dataclasses.replace(config.machine, tool_length_mm=config.machine.tool_length_mm + 50.0)
+        kin2 = Kinematics(machine)
+        sched = RotarySchedule(config, kin2)
+        angles, _ = sched.angles(pts)
+        return kin2, kin2.inverse(pts, angles), pivot, "another tool length (+50 mm)"
+    rot = config.test.rotary
+    names = [a.name for a in config.machine.rotary_axes]
+    moving = dataclasses.replace(rot, schedule="moving", tilt_axis=rot.tilt_axis or names[0],
+                                 turn_axis=rot.turn_axis or names[-1],
+                                 tilt_at_pole_rad=rot.tilt_at_pole_rad or math.radians(45.0))
+    cfg = dataclasses.replace(config, test=dataclasses.replace(config.test, rotary=moving))
+    angles, _ = RotarySchedule(cfg, kin).angles(pts)
+    return kin, kin.inverse(pts, angles), pivot, "moving rotary axes"
+
+
+def _suggest(name: str, model: ErrorModel, experiments, grams: list[Gram], sigma: float,
+             individually: list) -> dict:
+    if any(d["parameter"] == name for d in individually):
+        return {"parameter": name, "identifiable": True, "needs": []}
+    j = model.index(name)
+    plan, program, _ = experiments[0]
+    config = plan.config
+    kinds = ["pivot", "tool"]
+    if config.machine.rotary_axes and config.test.rotary.schedule == "locked":
+        kinds.append("moving")
+    results = []
+    for kind in kinds:
+        kin2, q, pivot, text = _candidate_poses(plan, program, kind, config)
+        g = _design_gram(plan, program, model, kin2, q, pivot, step=10)
+        S, _, _, _ = _schur(grams + [g])
+        lam, V = np.linalg.eigh(S)
+        keep = lam > max(lam.max(), 1e-300) * 1e-12
+        std = np.where(keep, sigma / np.sqrt(np.maximum(lam, 1e-300)), np.inf)
+        det = keep & (std < DETERMINED)
+        Vd = V[:, det]
+        inside = float(np.sum(Vd[j] ** 2))
+        ok = inside > 1 - 1e-6
+        var = float(np.sum(V[j, det] ** 2 / lam[det])) * sigma ** 2 if ok else float("inf")
+        results.append({"set_up": text, "makes_identifiable": ok,
+                        "std": (math.sqrt(var) * prior_scale(model.parameters[j])) if ok else None,
+                        "share_in_determined_space": inside})
+    return {"parameter": name, "identifiable": False, "needs": results}
+
+
+def _design_gram(plan: PlanFiles, program: str, model: ErrorModel, kin: Kinematics,
+                 q: np.ndarray, pivot: np.ndarray, step: int) -> Gram:
+    """Design-only Gram of a candidate set-up, from every ``step``-th pose (weighted)."""
+    traj = plan.trajectory(program)
+    keep = (traj.phase != "reposition")
+    idx = np.flatnonzero(keep)[::step]
+    scale = np.array([prior_scale(p) for p in model.parameters])
+    J = sensitivities(kin, model, q[idx], pivot) * scale
+    p_nom = kin.forward(q[idx])
+    u = (p_nom - pivot) / np.linalg.norm(p_nom - pivot, axis=1)[:, None]
+    N = _nuisance_columns(u)
+    w = float(step)
+    n_p = J.shape[1]
+    return Gram(w * J.T @ J, w * J.T @ N, w * N.T @ N, np.zeros(n_p), np.zeros(4), 0.0,
+                int(len(idx) * step))

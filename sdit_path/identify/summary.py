@@ -1,0 +1,76 @@
+"""The identification report in plain words."""
+
+from __future__ import annotations
+
+
+def summary_text(report: dict, max_combinations: int = 20) -> str:
+    lines = []
+    m = report["model"]
+    lines.append(f"Identification from {report['samples']} samples of "
+                 f"{len(report['experiments'])} trace(s): noise about "
+                 f"{report['noise_std_um']:.3f} um, residual RMS {report['residual_rms_um']:.3f} um.")
+    lines.append(f"Model: {m['parameters']} parameters ({_options(m['options'])}), plus ball "
+                 f"centring (3) and bar length (1) for every trace, which are always unknown.")
+    lines.append("")
+    lines.append(f"What the data determine: {report['determined']} independent combination(s) "
+                 f"(structural rank {report['rank']}; a combination counts as determined when its "
+                 f"standard uncertainty is below half a typical error).")
+    for k, c in enumerate(report["combinations"][:max_combinations], start=1):
+        lines.append(f"  {k:2d}. {c['text']}")
+    if len(report["combinations"]) > max_combinations:
+        lines.append(f"  ... and {len(report['combinations']) - max_combinations} more (see --json)")
+    ind = report["identifiable_parameters"]
+    if ind:
+        lines.append("Parameters determined individually:")
+        for d in ind:
+            lines.append(f"  {d['parameter']} = {d['estimate']:.3f} +- {d['std']:.3f} {d['unit']}")
+    else:
+        lines.append("No single ISO parameter is determined individually: the data see only "
+                     "the combinations above.")
+    na = report["not_individually_identifiable"]
+    lines.append(f"Not determined individually ({len(na)}): {', '.join(na[:30])}"
+                 + (" ..." if len(na) > 30 else "") + ".")
+    lines.append("")
+    lines.append("Set-up nuisances (estimated, not machine errors):")
+    for n in report["nuisances"]:
+        c = n["centring_um"]
+        lines.append(f"  {n['program']}: ball centring ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) um, "
+                     f"bar length offset {n['bar_length_um']:.2f} um")
+    if "prior_estimates" in report:
+        lines.append("")
+        lines.append("Every parameter under a prior (Tikhonov; each ~ a typical error). "
+                     "'prior-driven' numbers are the prior speaking, not the machine:")
+        for d in report["prior_estimates"]:
+            lines.append(f"  {d['parameter']:>10} = {d['estimate']:9.3f} +- {d['std']:7.3f} "
+                         f"{d['unit']:<4}  resolution {d['resolution']:.2f}  {d['label']}")
+    for a in report.get("asked", []):
+        lines.append("")
+        if a["identifiable"]:
+            lines.append(f"{a['parameter']}: determined by these data (see above).")
+            continue
+        lines.append(f"{a['parameter']}: not identifiable from these data. Adding one more set-up "
+                     f"(simulated on the same path):")
+        for r in a["needs"]:
+            verdict = (f"yes, to +- {r['std']:.3f}" if r["makes_identifiable"] else
+                       f"no ({r['share_in_determined_space']:.0%} of it would be seen)")
+            lines.append(f"  {r['set_up']}: {verdict}")
+    obs = report["observability"]
+    if obs["layers"]:
+        lines.append("")
+        lines.append("Observability of the determined combinations (O1 larger is better; O4 is "
+                     "the noise amplification index, larger is better):")
+        for k, v in obs["layers"].items():
+            lines.append(f"  {k}: O1 {v['O1']:.3g}, O4 {v['O4']:.3g}")
+        segs = sorted(obs["segments"].items(), key=lambda kv: kv[1]["O4"])
+        if segs:
+            worst = ", ".join(f"{k} (O4 {v['O4']:.2g})" for k, v in segs[:5])
+            lines.append(f"  weakest segments: {worst}")
+    return "\n".join(lines)
+
+
+def _options(o: dict) -> str:
+    parts = [f"linear {o['linear_basis']} order {o['linear_order']}",
+             f"rotary Fourier order {o['rotary_order']}"]
+    parts.append("squareness" if o["squareness"] else "no squareness")
+    parts.append("location errors" if o["location"] else "no location errors")
+    return ", ".join(parts)

@@ -1,0 +1,95 @@
+"""Reading ballbar traces: the contract with users' instruments.
+
+UTF-8 CSV.  Optional leading ``# key: value`` lines.  A header row with at least
+``t_s`` and ``delta_l_um`` (or ``delta_l_mm``), in any column order; other columns are
+kept when they are ``segment``/``phase`` and ignored otherwise.  Empty or NaN values
+are dropouts.  Anything else - no such columns, a non-numeric value, time going
+backwards, no data - is an error naming the file and line.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SditError
+from .simulate import Trace
+
+
+class TraceError(SditError):
+    """A trace file that cannot be read; the message names the file and line."""
+
+    exit_code = 2
+
+
+def read_trace(path: str | Path) -> Trace:
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except FileNotFoundError:
+        raise TraceError(f"{p}: no such trace file") from None
+    except IsADirectoryError:
+        raise TraceError(f"{p}: is a directory, expected a trace CSV") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise TraceError(f"{p}:{line}: not UTF-8 text") from None
+    header: dict[str, str] = {}
+    lines = text.splitlines()
+    k = 0
+    while k < len(lines) and (lines[k].startswith("#") or not lines[k].strip()):
+        line = lines[k].lstrip("#").strip()
+        if ":" in line:
+            key, value = line.split(":", 1)
+            header[key.strip()] = value.strip()
+        k += 1
+    if k >= len(lines):
+        raise TraceError(f"{p}: no header row; expected columns t_s and delta_l_um (or delta_l_mm)")
+    cols = [c.strip() for c in lines[k].split(",")]
+    if "t_s" not in cols or not ({"delta_l_um", "delta_l_mm"} & set(cols)):
+        raise TraceError(f"{p}:{k + 1}: header row {lines[k][:80]!r} lacks t_s and delta_l_um "
+                         f"(or delta_l_mm)")
+    it = cols.index("t_s")
+    unit = "delta_l_um" if "delta_l_um" in cols else "delta_l_mm"
+    il = cols.index(unit)
+    factor = 1.0 if unit == "delta_l_um" else 1000.0
+    iseg = cols.index("segment") if "segment" in cols else None
+    iph = cols.index("phase") if "phase" in cols else None
+    body = lines[k + 1:]
+    t = np.empty(len(body))
+    dl = np.empty(len(body))
+    seg = np.empty(len(body), dtype=object)
+    ph = np.empty(len(body), dtype=object)
+    n = 0
+    for j, line in enumerate(body, start=k + 2):
+        if not line.strip() or line.startswith("#"):
+            continue
+        parts = line.split(",")
+        if len(parts) < len(cols):
+            raise TraceError(f"{p}:{j}: {len(parts)} fields, expected {len(cols)} (truncated line?)")
+        try:
+            tv = float(parts[it])
+        except ValueError:
+            raise TraceError(f"{p}:{j}: t_s {parts[it]!r} is not a number") from None
+        if not math.isfinite(tv):
+            raise TraceError(f"{p}:{j}: t_s is not finite")
+        if n and tv <= t[n - 1]:
+            raise TraceError(f"{p}:{j}: time goes backwards or repeats ({tv} s after {t[n - 1]} s)")
+        cell = parts[il].strip()
+        if cell == "" or cell.lower() == "nan":
+            lv = np.nan
+        else:
+            try:
+                lv = float(cell) * factor
+            except ValueError:
+                raise TraceError(f"{p}:{j}: {unit} {cell!r} is not a number") from None
+        t[n], dl[n] = tv, lv
+        seg[n] = parts[iseg].strip() if iseg is not None else ""
+        ph[n] = parts[iph].strip() if iph is not None else ""
+        n += 1
+    if n == 0:
+        raise TraceError(f"{p}: no data rows after the header")
+    return Trace(t[:n], dl[:n], seg[:n], ph[:n], header)
