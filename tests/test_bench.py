@@ -22,3 +22,10 @@ def test_interference_benchmark_runs_and_prints_its_ratio():
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     assert "poses/s" in r.stdout and "ratio" in r.stdout
+
+
+def test_identification_benchmark_runs_and_prints_its_ratio():
+    r = subprocess.run([sys.executable, str(BENCH / "bench_identify.py"), "--quick"],
+                       capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    assert "samples/s" in r.stdout and "Cramer-Rao bound" in r.stdout
