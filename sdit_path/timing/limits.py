@@ -16,10 +16,9 @@ over the run,
 
 for every axis, at any |v| <= v_max, |a| <= a_max, |j| <= j_max.  Tight curvature (or
 a fast-turning rotary axis) eats into the acceleration and jerk budgets as v_max
-grows, so for a whole stretch v_max is not simply the largest feasible one: the triple
-is chosen to minimise its time estimate ``L/v + v/a + a/j``.  Runs are cut into short
-windows that each cruise near their own cap; the speed changes between them are
-scheduled by :func:`~sdit_path.timing.profile.plan_chain`.
+grows.  Runs are cut into short windows, each with a :class:`Budget` that gives the
+usable path acceleration and jerk as a function of the speed it runs at; the speed
+changes between windows are scheduled by :func:`~sdit_path.timing.profile.plan_chain`.
 """
 
 from __future__ import annotations
@@ -39,56 +38,6 @@ class PathLimits:
     a_max: float
     j_max: float
     binding: str
-
-
-def path_limits(d1: np.ndarray, d2: np.ndarray, d3: np.ndarray, v_limit: np.ndarray,
-                a_limit: np.ndarray, j_limit: np.ndarray, names: tuple[str, ...], feed: float,
-                length_mm: float | None = None, cruise_share: float = 0.95) -> PathLimits:
-    """Limits from the path derivatives ``d1, d2, d3 : (n, n_axes)`` (d/ds of the axis
-    values on a grid along a stretch) and per-axis limits ``(n_axes,)``.
-
-    With ``length_mm`` (a whole rest-to-rest stretch) the triple minimising the time
-    estimate is searched; without it (a window inside a run, where the speed changes
-    are scheduled across windows) the window cruises at its highest speed, kept at
-    ``cruise_share`` of a curvature cap so some budget is left to change speed."""
-    tiny = 1e-12
-    m1 = np.maximum(np.abs(d1).max(axis=0), tiny)
-    m2 = np.abs(d2).max(axis=0)
-    m3 = np.abs(d3).max(axis=0)
-    caps = {"feed": feed}
-    for i, n in enumerate(names):
-        caps[f"{n} velocity"] = v_limit[i] / m1[i]
-        if m2[i] > tiny:
-            caps[f"{n} curvature"] = 0.999 * np.sqrt(a_limit[i] / m2[i])
-        if m3[i] > tiny:
-            caps[f"{n} curvature"] = min(caps.get(f"{n} curvature", np.inf),
-                                         0.999 * np.cbrt(j_limit[i] / m3[i]))
-    first = min(caps, key=caps.get)
-    v_hi = caps[first]
-    if "curvature" in first:
-        # a window near its curvature cap keeps a margin for changing speed
-        v_hi *= cruise_share
-    best = None
-    candidates = [v_hi] if length_mm is None else v_hi * np.geomspace(1.0, 0.02, 60)
-    for v in candidates:
-        a_acc = np.min((a_limit - m2 * v * v) / m1)
-        rest = j_limit - m3 * v ** 3
-        if a_acc <= 0 or np.any(rest <= 0):
-            continue
-        for share in (0.1, 0.25, 0.5, 0.75, 0.9):
-            a_jerk = np.min(np.where(m2 > tiny, share * rest / np.maximum(3.0 * m2 * v, tiny), np.inf))
-            a = min(a_acc, a_jerk)
-            j = np.min((rest - 3.0 * m2 * v * a) / m1)
-            if a <= 0 or j <= 0:
-                continue
-            time = (length_mm or 0.0) / v + v / a + a / j
-            if best is None or time < best[0]:
-                best = (time, v, a, j)
-    if best is None:
-        raise ValueError("no feasible path limits")
-    _, v, a, j = best
-    binding = first if v >= v_hi * (1 - 1e-9) else f"{first} (lowered to save acceleration)"
-    return PathLimits(float(v), float(a), float(j), binding)
 
 
 @dataclass(frozen=True, slots=True)

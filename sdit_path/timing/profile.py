@@ -87,6 +87,20 @@ def change_distance(v1: float, v2: float, a: float, j: float) -> float:
     return 0.5 * (v1 + v2) * t
 
 
+def _largest(fits, lo: float, hi: float, steps: int = 50) -> float:
+    """Largest value in [lo, hi] for which the monotone predicate ``fits`` holds
+    (``lo`` is assumed to fit)."""
+    if fits(hi):
+        return hi
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        if fits(mid):
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
 def _reachable(v_from: float, length: float, budget, cap: float, slack: float) -> float:
     """Largest speed <= cap that can be changed to or from ``v_from`` within ``length``,
     with the window's budget at the higher of the two speeds."""
@@ -94,16 +108,7 @@ def _reachable(v_from: float, length: float, budget, cap: float, slack: float) -
         a, j = budget.at(max(v, v_from))
         return a > 0 and j > 0 and change_distance(v_from, v, a * slack, j * slack) <= length
 
-    if fits(cap):
-        return cap
-    lo, hi = min(v_from, cap), cap
-    for _ in range(50):
-        mid = 0.5 * (lo + hi)
-        if fits(mid):
-            lo = mid
-        else:
-            hi = mid
-    return lo
+    return _largest(fits, min(v_from, cap), cap)
 
 
 def _peak(v0: float, v1: float, length: float, budget, slack: float) -> float:
@@ -113,16 +118,7 @@ def _peak(v0: float, v1: float, length: float, budget, slack: float) -> float:
         return a > 0 and j > 0 and (change_distance(v0, v, a * slack, j * slack)
                                     + change_distance(v, v1, a * slack, j * slack)) <= length
 
-    lo, hi = max(v0, v1), budget.v_cap
-    if fits(hi):
-        return hi
-    for _ in range(50):
-        mid = 0.5 * (lo + hi)
-        if fits(mid):
-            lo = mid
-        else:
-            hi = mid
-    return lo
+    return _largest(fits, max(v0, v1), budget.v_cap)
 
 
 def plan_state(length_mm: float, v_start: float, v_end: float, limits: PathLimits,

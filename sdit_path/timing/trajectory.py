@@ -25,7 +25,7 @@ from ..geometry.nurbs import round_to_decimals
 from ..geometry.paths import Dwell, LayerPath, Remount, Run
 from ..machine.kinematics import Kinematics
 from ..machine.schedule import RotarySchedule
-from .limits import Budget, PathLimits, budget, path_limits
+from .limits import Budget, PathLimits, budget
 from .profile import PHASES, ChainProfile, Profile, plan_chain, plan_profile
 
 PHASE_NAMES = ("accelerate", "cruise", "decelerate", "dwell", "reposition")
@@ -187,8 +187,8 @@ class Timer:
         q = self.kin.inverse(pts, ang)
         d1 = np.gradient(q, length / 32, axis=0, edge_order=2)
         zero = np.zeros_like(d1)
-        return path_limits(d1, zero, zero, self.v_lim, self.a_lim, self.j_lim, self.kin.names,
-                           self.feed, length)
+        bud = budget(d1, zero, zero, self.v_lim, self.a_lim, self.j_lim, self.kin.names, self.feed)
+        return bud.limits(bud.v_cap)
 
     def time_layer(self, path: LayerPath) -> TimedLayer:
         items = []
