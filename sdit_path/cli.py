@@ -28,7 +28,9 @@ def _fail(exc: SditError) -> None:
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="sdit-path")
 def main() -> None:
-    """Plan spatial double-ball-bar identification tests and write their NC programs."""
+    """Plan spatial double-ball-bar identification tests (SDIT), write their NC programs,
+    preview their feed profiles, simulate ballbar traces and identify what a trace
+    determines about the machine's geometric errors."""
 
 
 @main.command("plan")
