@@ -57,7 +57,7 @@ def main() -> None:
             worst = min([worst] + [c.value_mm for c in found.values()])
     dt = time.perf_counter() - t0
     rate = n / dt
-    print(f"interference check incl. kinematics, 5-axis sample, whole hemisphere:")
+    print("interference check incl. kinematics, 5-axis sample, whole hemisphere:")
     print(f"  poses {n}, pairs {len(scene.pairs)}, time {dt:.3f} s")
     print(f"  poses/s {rate:,.0f}  (target {TARGET:,}; ratio {rate / TARGET:.2f})")
     print(f"  fcl queries {calls:,} of {n * len(scene.pairs):,} exhaustive "

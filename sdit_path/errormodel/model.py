@@ -25,7 +25,6 @@ second the direction (Eq. 10 of the paper); see :data:`PAPER_SYMBOLS`.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -185,15 +184,3 @@ def component_errors(model: ErrorModel, theta: np.ndarray, q: np.ndarray,
             continue
         out[p.axis][:, p.component] += v * p.scale * model.basis_values(p, q[:, axis_index[p.axis]])
     return out
-
-
-def describe_symbol(name: str) -> str:
-    """The paper's symbol for an ISO name, when it has one."""
-    for sym, iso in PAPER_SYMBOLS.items():
-        if iso == name:
-            return sym
-    return ""
-
-
-def is_finite_model(model: ErrorModel) -> bool:
-    return all(math.isfinite(a) and math.isfinite(b) for _, a, b in model.travel)

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..arrays import frozen
-import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.interpolate import BSpline, CubicSpline
 

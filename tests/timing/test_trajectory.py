@@ -11,7 +11,7 @@ import pytest
 from sdit_path.config import parse_config, sample_path
 from sdit_path.geometry.hemisphere import partition
 from sdit_path.geometry.paths import PathBuilder
-from sdit_path.pipeline import plan, trajectory_files
+from sdit_path.pipeline import trajectory_files
 from sdit_path.timing.limits import PathLimits
 from sdit_path.timing.profile import plan_profile
 from sdit_path.timing.trajectory import Timer, read_csv, sample, to_csv
