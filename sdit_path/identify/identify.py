@@ -63,18 +63,14 @@ def _nuisance_columns(u: np.ndarray) -> np.ndarray:
 
 
 def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: ErrorModel,
-                    kin: Kinematics | None = None, q: np.ndarray | None = None,
-                    pivot: np.ndarray | None = None, weight: float = 1.0,
                     chunk: int = 200_000) -> Gram:
     """Gram matrices of one experiment.  With ``trace`` the readings come from it
-    (matched to the trajectory by time); without, only the design (y = 0) - used to
-    evaluate candidate set-ups.  ``q``/``pivot`` override the poses (candidates)."""
+    (matched to the trajectory by time); without, only the design (y = 0)."""
     cfg = plan.config
-    kin = kin or Kinematics(cfg.machine)
+    kin = Kinematics(cfg.machine)
     traj = plan.trajectory(program)
-    pivot = np.array(cfg.ballbar.pivot_mm) if pivot is None else pivot
-    if q is None:
-        q = axis_values_rad(traj, kin)
+    pivot = np.array(cfg.ballbar.pivot_mm)
+    q = axis_values_rad(traj, kin)
     segment, phase = traj.segment, traj.phase
     y = np.zeros(len(q))
     valid = phase != "reposition"
@@ -99,12 +95,12 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
         u = (p_nom - pivot) / d[:, None]
         yy = y[sel] - (d - cfg.ballbar.bar_length_mm) * 1e3 if trace is not None else y[sel]
         N = _nuisance_columns(u)
-        g.A += weight * J.T @ J
-        g.B += weight * J.T @ N
-        g.C += weight * N.T @ N
-        g.b += weight * J.T @ yy
-        g.c += weight * N.T @ yy
-        g.yy += weight * float(yy @ yy)
+        g.A += J.T @ J
+        g.B += J.T @ N
+        g.C += N.T @ N
+        g.b += J.T @ yy
+        g.c += N.T @ yy
+        g.yy += float(yy @ yy)
         g.m += len(sel)
         for sid in np.unique(segment[sel]):
             if phase[sel][segment[sel] == sid][0] == "dwell":
@@ -115,7 +111,7 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
             g.segments[sid] = (a + Js.T @ Js, n + int(rs.sum()))
         lay = program
         a, n = g.layers.get(lay, (0.0, 0))
-        g.layers[lay] = (a + weight * J.T @ J, n + len(sel))
+        g.layers[lay] = (a + J.T @ J, n + len(sel))
     return g
 
 
