@@ -240,3 +240,115 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
         _fail(exc)
         return
     click.echo(summary_text(report))
+
+
+@main.command("perturb")
+@click.option("--plan", "plan_dir", required=True, type=click.Path(file_okay=False),
+              help="A directory written by sdit-path plan.")
+@click.option("--program", required=True, help="Program name, e.g. SDIT_C.")
+@click.option("--model", "model_file", default=None,
+              help="Geometric error set of the machine (TOML or bundled name); default none.")
+@click.option("--effect", "effects", multiple=True,
+              help="Hidden effect 'name:key=value,...' (repeat); e.g. servo_lag:kv_per_s=30.")
+@click.option("--seed", default=None, type=int,
+              help="Draw the hidden effects and the recording from this seed instead.")
+@click.option("--noise-um", default=None, type=float, help="Sensor noise (um, 1 sigma).")
+@click.option("--lead-s", default=None, type=float, help="Recording starts this early (s).")
+@click.option("--clock-ppm", default=None, type=float, help="Instrument clock error (ppm).")
+@click.option("--out", "out_file", required=True, type=click.Path(dir_okay=False),
+              help="Measured-trace CSV to write (t_s, delta_l_um).")
+@click.option("--truth", "truth_file", type=click.Path(dir_okay=False),
+              help="Write what was hidden here (never into the trace).")
+def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead_s, clock_ppm,
+                    out_file, truth_file) -> None:
+    """Make a realistic measured trace of PROGRAM with hidden effects."""
+    import dataclasses
+    import json
+
+    from .diagnose.context import build_context
+    from .errormodel.errorset import load_error_set
+    from .output import write_file
+    from .planfiles import load_plan
+    from .sim.perturb import (Hidden, Recording, draw_case, draw_effect, draw_recording,
+                              measured_csv, parse_effect, perturb, truth_json)
+
+    try:
+        plan = load_plan(plan_dir)
+        model = load_error_set(model_file) if model_file else None
+        ctx = build_context(plan, program)
+        if seed is not None and not effects:
+            _, hidden = draw_case(seed, ctx)
+        else:
+            hidden = [parse_effect(e) for e in effects]
+        # parameters not given are drawn (seeded), the given ones kept
+        rng = np.random.default_rng([seed or 0, 5])
+        hidden = [Hidden(h.name, {**draw_effect(h.name, rng, ctx).params, **h.params})
+                  for h in hidden]
+        rec = draw_recording(seed) if seed is not None else Recording()
+        changes = {k: v for k, v in (("noise_um", noise_um), ("lead_s", lead_s),
+                                     ("clock_ppm", clock_ppm)) if v is not None}
+        rec = dataclasses.replace(rec, **changes)
+        trace, truth = perturb(plan, program, model, hidden, rec, seed or 0, ctx)
+        write_file(out_file, measured_csv(trace))
+        if truth_file:
+            write_file(truth_file, json.dumps(truth_json(truth), indent=2) + "\n")
+    except SditError as exc:
+        _fail(exc)
+        return
+    click.echo(f"wrote {out_file}: {len(trace.t_s)} samples over {trace.t_s[-1]:.1f} s "
+               f"({len(hidden)} hidden effect(s){'; truth in ' + truth_file if truth_file else ''})")
+
+
+@main.command("diagnose")
+@click.option("--plan", "plan_dir", required=True, type=click.Path(file_okay=False),
+              help="A directory written by sdit-path plan.")
+@click.option("--program", required=True, help="Program the trace recorded, e.g. SDIT_C.")
+@click.option("--measured", "measured", required=True, type=click.Path(dir_okay=False),
+              help="Measured trace CSV (t_s and delta_l_um or delta_l_mm).")
+@click.option("--model", "model_file", default=None,
+              help="Geometric error set to simulate with (TOML or bundled name); default none.")
+@click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Write the report as JSON.")
+@click.option("--pictures", "pic_dir", type=click.Path(file_okay=False),
+              help="Write residual_time.png and residual_hemisphere.png here.")
+@click.option("--quiet", "-q", is_flag=True, help="No summary on stdout.")
+def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir, quiet) -> None:
+    """Diagnose the gap between the simulated and the measured trace of PROGRAM."""
+    import json
+    from pathlib import Path
+
+    from .diagnose.context import build_context
+    from .diagnose.diagnose import diagnose
+    from .diagnose.report import pictures, summary_text, to_json
+    from .errormodel.errorset import load_error_set
+    from .output import write_file
+    from .planfiles import load_plan
+    from .sim.traceio import read_trace
+
+    console = Console(stderr=True, quiet=quiet)
+    try:
+        plan = load_plan(plan_dir)
+        model = load_error_set(model_file) if model_file else None
+        trace = read_trace(measured)
+        with console.status("diagnosing", spinner="dots") if console.is_terminal and not quiet \
+                else _Null() as status:
+            result = diagnose(plan, program, trace, model,
+                              progress=(lambda m: status.update(m)) if status else None)
+        report = to_json(result)
+        if json_out:
+            write_file(json_out, json.dumps(report, indent=2) + "\n")
+        if pic_dir:
+            for name, png in pictures(result, build_context(plan, program)).items():
+                write_file(Path(pic_dir) / f"{name}.png", png)
+    except SditError as exc:
+        _fail(exc)
+        return
+    if not quiet:
+        click.echo(summary_text(result), nl=False)
+
+
+class _Null:
+    def __enter__(self):
+        return None
+
+    def __exit__(self, *exc):
+        return False

@@ -1,0 +1,1 @@
+"""Diagnosing the gap between a simulated and a measured ballbar trace."""

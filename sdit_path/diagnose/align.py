@@ -1,0 +1,194 @@
+"""Aligning a measured trace with the program: the recording offset and the
+instrument's clock rate.
+
+The instrument starts at an unknown moment before the program and runs on its own
+clock (up to +-200 ppm off).  Measured time ``t_m`` and program time ``tau`` are
+related by ``t_m = offset_s + tau * (1 + clock_ppm * 1e-6)``.
+
+Coarse: at 10 Hz, for every clock rate on a grid and every offset, a linear model of
+the features every trace shares - the simulated reading, the dwell/motion pattern of
+the static nodes (a step in the reading when motion starts: lag, smoothing), the bar
+direction (set-up offsets) and a constant - is fitted by FFT correlations; the best
+(offset, rate) wins.  Fine: Gauss-Newton on the offset and rate at the full rate with
+the same model.  Before the program and after it the machine stands at its first and
+last pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import correlate
+
+from ..errors import SditError
+from .context import Context
+
+
+class AlignmentError(SditError):
+    exit_code = 3
+
+
+@dataclass(frozen=True, slots=True)
+class Alignment:
+    offset_s: float
+    clock_ppm: float
+    offset_std_s: float
+    clock_std_ppm: float
+    rms_um: float
+
+    def program_time(self, t_m: np.ndarray) -> np.ndarray:
+        return (np.asarray(t_m) - self.offset_s) / (1.0 + self.clock_ppm * 1e-6)
+
+    def measured_time(self, tau: np.ndarray) -> np.ndarray:
+        return self.offset_s + np.asarray(tau) * (1.0 + self.clock_ppm * 1e-6)
+
+
+def generic_columns(ctx: Context, expected_um: np.ndarray) -> np.ndarray:
+    """``(n, m)`` on the trajectory grid: expected reading (if it varies), constant,
+    bar direction, a smoothed motion indicator, -v^2/(2L), time, and a step at each
+    reversal of every linear axis."""
+    mov = ctx.moving.astype(float)
+    k = max(1, int(round(0.02 / max(float(np.median(np.diff(ctx.t_s))), 1e-6))))
+    mov = np.convolve(mov, np.ones(k) / k, mode="same")
+    cols = [np.ones(ctx.n), ctx.u[:, 0], ctx.u[:, 1], ctx.u[:, 2], mov,
+            -(ctx.speed_mm_per_s ** 2) / (2 * ctx.length_mm) * 1e3, ctx.t_s / 3600.0]
+    cols += [ctx.gain[:, j] * ctx.direction[:, j] for j in ctx.linear]  # lost motion
+    if np.ptp(expected_um) > 1e-3:
+        cols.insert(0, expected_um)
+    X = np.column_stack(cols)
+    keep = [i for i in range(X.shape[1]) if i == 0 or np.ptp(X[:, i]) > 1e-9]
+    return X[:, keep]
+
+
+def _block_mean(x: np.ndarray, w: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted means of ``x`` over index blocks [edges[i], edges[i+1])."""
+    cx = np.r_[0.0, np.cumsum(np.where(w > 0, x, 0.0) * w)]
+    cw = np.r_[0.0, np.cumsum(w)]
+    sx = cx[edges[1:]] - cx[edges[:-1]]
+    sw = cw[edges[1:]] - cw[edges[:-1]]
+    return np.where(sw > 0, sx / np.maximum(sw, 1e-12), 0.0), sw
+
+
+def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
+           ppm_limit: float = 200.0, block_s: float = 0.1) -> tuple[float, float]:
+    """Best (offset_s, clock_ppm) on a grid: offsets at ``block_s``, rates at a step
+    that keeps the drift over the program under a block."""
+    T = ctx.duration_s
+    dt_p = float(np.median(np.diff(ctx.t_s)))
+    per = max(1, int(round(block_s / dt_p)))
+    nb = ctx.n // per
+    if nb < 4:
+        raise AlignmentError("program too short to align")
+    edges_p = np.arange(nb + 1) * per
+    Xb = np.column_stack([_block_mean(X[:, a], np.ones(ctx.n), edges_p)[0]
+                          for a in range(X.shape[1])])
+    x0, xT = X[0], X[-1]
+    valid = np.isfinite(y)
+    yv = np.where(valid, y, 0.0)
+    step_ppm = max(1.0, 0.5 * block_s / max(T, 1e-9) * 1e6)
+    rates = np.arange(-ppm_limit, ppm_limit + 0.5 * step_ppm, step_ppm)
+    dt_m = float(np.median(np.diff(t_m)))
+    best = (np.inf, 0.0, 0.0)
+    m = X.shape[1]
+    for ppm in rates:
+        d = per * dt_p * (1 + ppm * 1e-6)  # one program block in instrument time
+        n_m = int((t_m[-1] - t_m[0]) / d)
+        if n_m < nb:
+            continue
+        edges_m = np.clip(np.round((t_m[0] + np.arange(n_m + 1) * d - t_m[0]) / dt_m).astype(int),
+                          0, len(y))
+        yb, wb = _block_mean(yv, valid.astype(float), edges_m)
+        wb = wb / max(wb.max(), 1e-12)
+        wy = wb * yb
+        b = np.stack([correlate(wy, Xb[:, a], mode="valid", method="fft") for a in range(m)], 1)
+        G = np.empty((len(b), m, m))
+        for a in range(m):
+            for c in range(a, m):
+                v = correlate(wb, Xb[:, a] * Xb[:, c], mode="valid", method="fft")
+                G[:, a, c] = G[:, c, a] = v
+        j = np.arange(len(b))
+        cw = np.r_[0.0, np.cumsum(wb)]
+        cwy = np.r_[0.0, np.cumsum(wy)]
+        pre_w, pre_y = cw[j], cwy[j]
+        post_w, post_y = cw[-1] - cw[j + nb], cwy[-1] - cwy[j + nb]
+        G += pre_w[:, None, None] * np.outer(x0, x0) + post_w[:, None, None] * np.outer(xT, xT)
+        b += pre_y[:, None] * x0 + post_y[:, None] * xT
+        G += np.eye(m) * 1e-9 * np.trace(G, axis1=1, axis2=2)[:, None, None]
+        beta = np.linalg.solve(G, b[..., None])[..., 0]
+        rss = float((wb * yb * yb).sum()) - np.einsum("ja,ja->j", b, beta)
+        k = int(np.argmin(rss))
+        if rss[k] < best[0]:
+            frac = 0.0
+            if 0 < k < len(rss) - 1:
+                den = rss[k - 1] - 2 * rss[k] + rss[k + 1]
+                frac = 0.5 * (rss[k - 1] - rss[k + 1]) / den if den > 0 else 0.0
+            best = (float(rss[k]), (k + frac) * d, float(ppm))
+    if not np.isfinite(best[0]):
+        raise AlignmentError("the trace is shorter than the program at every clock rate")
+    return best[1] + float(t_m[0]), best[2]
+
+
+def _fit_rms(X, t, tm, yy, offset_s, k):
+    tau = np.clip((tm - offset_s) / (1 + k), t[0], t[-1])
+    Xs = np.column_stack([np.interp(tau, t, X[:, a]) for a in range(X.shape[1])])
+    beta, *_ = np.linalg.lstsq(Xs, yy, rcond=None)
+    r = yy - Xs @ beta
+    return float(np.sqrt(np.mean(r * r))), tau, Xs, beta
+
+
+def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s: float,
+           ppm: float, ppm_limit: float = 200.0, iterations: int = 8,
+           max_samples: int = 300_000, max_step_s: float = 0.05) -> Alignment:
+    """Gauss-Newton on (offset, rate) with the linear model ``X`` at the full rate;
+    a step that does not lower the residual is halved, the rate stays within
+    ``ppm_limit`` (plus 10 %)."""
+    valid = np.flatnonzero(np.isfinite(y))
+    if len(valid) > max_samples:
+        valid = np.sort(np.random.default_rng(0).choice(valid, max_samples, replace=False))
+    tm, yy = t_m[valid], y[valid]
+    t = ctx.t_s
+    T = t[-1]
+    k = ppm * 1e-6
+    kmax = 1.1 * ppm_limit * 1e-6
+    std = (np.inf, np.inf)
+    rms, tau, Xs, beta = _fit_rms(X, t, tm, yy, offset_s, k)
+    for _ in range(iterations):
+        f = X @ beta
+        fd = np.interp(tau, t, np.gradient(f, t))
+        raw = (tm - offset_s) / (1 + k)
+        inside = (raw > t[0]) & (raw < T)
+        # d tau / d offset = -1/(1+k); d tau / d k = -tau/(1+k)
+        J = np.column_stack([Xs, -fd * inside / (1 + k), -fd * tau * inside / (1 + k) * 1e-6])
+        sol, *_ = np.linalg.lstsq(J, yy, rcond=None)
+        r = yy - Xs @ beta
+        try:
+            cov = np.linalg.inv(J.T @ J) * float(np.mean(r * r))
+            std = (float(np.sqrt(cov[-2, -2])), float(np.sqrt(cov[-1, -1])))
+        except np.linalg.LinAlgError:
+            pass
+        d_off = float(np.clip(sol[-2], -max_step_s, max_step_s))
+        d_k = float(sol[-1]) * 1e-6
+        for _half in range(6):
+            k_new = float(np.clip(k + d_k, -kmax, kmax))
+            trial = _fit_rms(X, t, tm, yy, offset_s + d_off, k_new)
+            if trial[0] <= rms:
+                break
+            d_off, d_k = d_off / 2, d_k / 2
+        else:
+            break
+        offset_s, k = offset_s + d_off, k_new
+        rms, tau, Xs, beta = trial
+        if abs(d_off) < 1e-6 and abs(d_k) < 1e-8:
+            break
+    return Alignment(offset_s, k * 1e6, std[0], std[1], rms)
+
+
+def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
+          ppm_limit: float = 200.0) -> Alignment:
+    X = generic_columns(ctx, expected_um)
+    if t_m[-1] - t_m[0] < ctx.duration_s * (1 - ppm_limit * 1e-6):
+        raise AlignmentError(f"the trace lasts {t_m[-1] - t_m[0]:.3f} s, the program "
+                             f"{ctx.duration_s:.3f} s: the recording is shorter than the program")
+    off, ppm = coarse(ctx, X, t_m, y, ppm_limit)
+    return refine(ctx, X, t_m, y, off, ppm, ppm_limit)

@@ -1,0 +1,118 @@
+"""What the diagnosis knows about every trajectory sample: the nominal ball, the bar
+direction, how each machine axis moves the bar, axis directions and reversals.
+
+Everything here follows from the plan (trajectory + kinematics); nothing from a trace.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..machine.kinematics import Kinematics
+from ..planfiles import PlanFiles
+from ..sim.simulate import axis_values_rad
+
+
+@dataclass(frozen=True, slots=True)
+class Context:
+    """Per-sample geometry of one program on its trajectory grid (program time).
+
+    ``t_s : (n,)``; ``ball_mm, u : (n, 3)`` nominal ball (table frame) and unit bar
+    direction from the pivot; ``length_mm : (n,)``; ``speed_mm_per_s : (n,)`` ball speed
+    relative to the table; ``q : (n, m)`` axis values (mm, rad); ``qdot : (n, m)``
+    axis velocities; ``gain : (n, m)`` bar reading change (mm) per unit axis error (mm
+    or rad); ``direction : (n, m)`` +-1 last direction of motion of each axis;
+    ``since_reversal_s : (n, m)`` time since that axis last reversed (inf before its
+    first reversal); ``position_at_reversal : (n, m)`` where it was then (NaN before); ``moving : (n,)``; labels ``segment, phase : (n,)``.
+    """
+
+    t_s: np.ndarray
+    ball_mm: np.ndarray
+    u: np.ndarray
+    length_mm: np.ndarray
+    speed_mm_per_s: np.ndarray
+    q: np.ndarray
+    qdot: np.ndarray
+    gain: np.ndarray
+    direction: np.ndarray
+    since_reversal_s: np.ndarray
+    reversal_times: tuple
+    position_at_reversal: np.ndarray
+    moving: np.ndarray
+    segment: np.ndarray
+    phase: np.ndarray
+    axis_names: tuple[str, ...]
+    linear: tuple[int, ...]
+    pivot_mm: np.ndarray
+    run_id: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return len(self.t_s)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1] - self.t_s[0])
+
+
+def _directions(qdot: np.ndarray, eps: float) -> np.ndarray:
+    """+-1 last direction of motion per column; before the first motion, the first
+    direction (an axis that has not moved yet shows no step)."""
+    sign = np.where(qdot > eps, 1.0, np.where(qdot < -eps, -1.0, 0.0))
+    out = np.empty_like(sign)
+    for j in range(sign.shape[1]):
+        s = sign[:, j]
+        idx = np.where(s != 0, np.arange(len(s)), -1)
+        idx = np.maximum.accumulate(idx)
+        first = np.flatnonzero(s)
+        col = np.where(idx >= 0, s[np.maximum(idx, 0)], s[first[0]] if first.size else 1.0)
+        out[:, j] = col
+    return out
+
+
+def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> Context:
+    """``velocity_eps``: axis speed (mm/s or rad/s) below which an axis counts as
+    standing still when its direction is tracked."""
+    cfg = plan.config
+    kin = Kinematics(cfg.machine)
+    traj = plan.trajectory(program)
+    q = axis_values_rad(traj, kin)
+    t = np.asarray(traj.t_s, dtype=float)
+    pivot = np.asarray(cfg.ballbar.pivot_mm, dtype=float)
+    ball = kin.forward(q)
+    r = ball - pivot
+    length = np.linalg.norm(r, axis=1)
+    u = r / length[:, None]
+    m = q.shape[1]
+    gain = np.zeros((len(t), m))
+    for j in range(m):
+        h = 1e-6 if kin.axes[j].is_rotary else 1e-3
+        qh = q.copy()
+        qh[:, j] += h
+        gain[:, j] = np.einsum("ni,ni->n", kin.forward(qh) - ball, u) / h
+    qdot = np.gradient(q, t, axis=0) if len(t) > 2 else np.zeros_like(q)
+    v = np.gradient(ball, t, axis=0) if len(t) > 2 else np.zeros_like(ball)
+    speed = np.linalg.norm(v, axis=1)
+    direction = _directions(qdot, velocity_eps)
+    since = np.full((len(t), m), np.inf)
+    at_rev = np.full((len(t), m), np.nan)
+    rev_times = []
+    for j in range(m):
+        flips = np.flatnonzero(np.diff(direction[:, j]) != 0) + 1
+        rev_times.append(t[flips])
+        last = np.full(len(t), -1)
+        last[flips] = flips
+        last = np.maximum.accumulate(last)
+        ok = last >= 0
+        since[ok, j] = t[ok] - t[last[ok]]
+        at_rev[ok, j] = q[last[ok], j]
+    phase = np.asarray(traj.phase, dtype=object)
+    moving = (phase != "dwell") & (phase != "reposition")
+    # runs: maximal stretches of motion between stops
+    run_id = np.cumsum(np.diff(np.r_[0, moving.astype(int)]) == 1) * moving - 1
+    linear = tuple(j for j in range(m) if not kin.axes[j].is_rotary)
+    return Context(t, ball, u, length, speed, q, qdot, gain, direction, since,
+                  tuple(rev_times), at_rev, moving, np.asarray(traj.segment, dtype=object), phase,
+                  tuple(kin.names), linear, pivot, run_id.astype(int))

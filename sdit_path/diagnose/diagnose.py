@@ -1,0 +1,445 @@
+"""Diagnosing the gap: align, localise, explain with the effect library, and check on
+held-out segments.
+
+The gap is the measured reading minus the simulated one (geometry of the model, if
+any).  Effects are added by forward selection: at each step every candidate searches
+its nonlinear parameters on the current residual, the one that lowers the training
+residual most is tried, and it is kept only when (1) an information criterion (BIC
+with an effective sample count that accounts for the residual's correlation in time)
+says the data support its parameters, and (2) the residual on held-out segments -
+every third stretch of the program, never used for fitting - shrinks too.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errormodel.chain import actual_ball
+from ..errormodel.errorset import ErrorSet
+from ..errormodel.model import build_model, values_vector
+from ..errors import ConfigError
+from ..machine.kinematics import Kinematics
+from ..planfiles import PlanFiles
+from ..sim.simulate import Trace
+from .align import Alignment, align, refine
+from .context import Context, build_context
+from .effects import Effect, Samples, library
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class Options:
+    """``heldout_every``: every n-th stretch of the program is held out;
+    ``max_fit_samples``: samples used for fitting (a seeded choice of 0.5 s blocks);
+    ``min_heldout_gain``: relative held-out MSE drop a new effect must bring;
+    ``bic_margin``: extra BIC units an effect must win; ``min_effect_noise``: the
+    held-out mean square it explains must exceed (this x noise)^2; ``mimic_r2``: share of a
+    finding's signal another effect must reproduce to be reported as its mimic."""
+
+    heldout_every: int = 3
+    max_fit_samples: int = 300_000
+    min_heldout_gain: float = 0.01
+    bic_margin: float = 10.0
+    mimic_r2: float = 0.8
+    min_effect_noise: float = 0.5
+    max_effects: int = 6
+
+
+@dataclass
+class Finding:
+    effect: str
+    title: str
+    parameters: dict
+    nonlinear: dict
+    labels: tuple
+    rms_before_um: float
+    rms_after_um: float
+    heldout_rms_before_um: float
+    heldout_rms_after_um: float
+    delta_bic: float
+    runner_up: str | None = None
+    runner_up_ratio: float = math.inf
+    mimics: list = field(default_factory=list)
+    confidence: str = "low"
+    where: dict = field(default_factory=dict)
+    contribution_rms_um: float = 0.0
+
+
+@dataclass
+class Diagnosis:
+    program: str
+    alignment: Alignment
+    gap: dict
+    findings: list
+    unexplained: dict
+    noise_um: float
+    samples: dict
+    series: dict  # arrays for the pictures: tau, gap, fitted, residual, idx
+
+
+def expected_reading(plan: PlanFiles, ctx: Context, model: ErrorSet | None) -> np.ndarray:
+    """The simulated bar reading (um) on the trajectory grid: exact chain, no noise."""
+    cfg = plan.config
+    if model is None:
+        return np.zeros(ctx.n)
+    kin = Kinematics(cfg.machine)
+    em = build_model(cfg.machine, plan.tested_travel(), model.options)
+    try:
+        theta = values_vector(em, model.as_dict())
+    except KeyError as exc:
+        raise ConfigError(model.name, f"parameter {exc.args[0]} is not in the model for this "
+                                      f"machine") from None
+    ball = actual_ball(kin, em, theta, ctx.q)
+    return (np.linalg.norm(ball - ctx.pivot_mm, axis=1) - cfg.ballbar.bar_length_mm) * 1e3
+
+
+def _units(ctx: Context) -> np.ndarray:
+    """Stretch number of every grid sample: a new stretch at every label change."""
+    seg = ctx.segment
+    change = np.r_[True, seg[1:] != seg[:-1]]
+    return np.cumsum(change) - 1
+
+
+def _block_choice(candidates: np.ndarray, quota: int, rng, block: int = 500) -> np.ndarray:
+    if len(candidates) <= quota:
+        return candidates
+    nb = int(math.ceil(len(candidates) / block))
+    pick = np.sort(rng.choice(nb, max(1, quota // block), replace=False))
+    out = (pick[:, None] * block + np.arange(block)[None, :]).ravel()
+    return candidates[out[out < len(candidates)]]
+
+
+def _rho(r: np.ndarray, tau: np.ndarray) -> float:
+    adj = np.diff(tau) < 0.0015
+    if adj.sum() < 100:
+        return 0.0
+    a, b = r[:-1][adj], r[1:][adj]
+    a, b = a - a.mean(), b - b.mean()
+    den = math.sqrt(float(a @ a) * float(b @ b))
+    return float(np.clip((a @ b) / den, 0.0, 0.9999)) if den > 0 else 0.0
+
+
+class _Fitter:
+    """Least squares on the training samples with column scaling."""
+
+    def __init__(self, y_tr, y_ho):
+        self.y_tr, self.y_ho = y_tr, y_ho
+
+    @staticmethod
+    def solve(A, y):
+        scale = np.sqrt((A * A).sum(0))
+        scale[scale == 0] = 1.0
+        coef, *_ = np.linalg.lstsq(A / scale, y, rcond=None)
+        return coef / scale
+
+
+def noise_estimate(r: np.ndarray, tau: np.ndarray) -> float:
+    """Sensor noise (um) from first differences of adjacent samples (robust)."""
+    adj = np.diff(tau) < 0.0015
+    d = np.diff(r)[adj]
+    if len(d) < 10:
+        return float(np.std(r))
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0))
+
+
+def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None = None,
+             options: Options = Options(), progress=None) -> Diagnosis:
+    def step(msg):
+        log.info(msg)
+        if progress:
+            progress(msg)
+
+    step("context")
+    ctx = build_context(plan, program)
+    expected = expected_reading(plan, ctx, model)
+    t_m, y = np.asarray(trace.t_s, float), np.asarray(trace.delta_l_um, float)
+    step("alignment")
+    al = align(ctx, expected, t_m, y)
+    lib = library(plan.config.machine, plan.tested_travel())
+    result = _explain(ctx, lib, expected, t_m, y, al, options, step)
+    # realign with the explained model and explain again when the alignment moved
+    if result.findings:
+        X = _model_columns(ctx, lib, expected, result.findings)
+        al2 = refine(ctx, X, t_m, y, al.offset_s, al.clock_ppm)
+        moved = abs(al2.offset_s - al.offset_s) + abs(al2.clock_ppm - al.clock_ppm) * 1e-6 * ctx.duration_s
+        if moved > 2e-4:
+            step("realigned; explaining again")
+            result = _explain(ctx, lib, expected, t_m, y, al2, options, step)
+    result.program = program
+    return result
+
+
+def _model_columns(ctx, lib, expected, findings) -> np.ndarray:
+    allg = Samples(np.arange(ctx.n), ctx.t_s)
+    cols = [expected[:, None], np.ones((ctx.n, 1))]
+    by = {e.name: e for e in lib}
+    for f in findings:
+        if f.effect == "vibration":
+            continue  # time-locked: it would pull the clock rate, not inform it
+        c, _ = by[f.effect].columns(ctx, allg, f.nonlinear)
+        cols.append(c)
+    return np.column_stack(cols)
+
+
+def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
+             y: np.ndarray, al: Alignment, opt: Options, step) -> Diagnosis:
+    tau_all = al.program_time(t_m)
+    T = ctx.t_s[-1]
+    ok = np.isfinite(y) & (tau_all >= ctx.t_s[0]) & (tau_all <= T)
+    sel = np.flatnonzero(ok)
+    tau = tau_all[sel]
+    idx = np.clip(np.rint((tau - ctx.t_s[0]) / (T - ctx.t_s[0]) * (ctx.n - 1)).astype(int),
+                  0, ctx.n - 1)
+    gap = y[sel] - np.interp(tau, ctx.t_s, expected)
+    unit = _units(ctx)[idx]
+    held = (unit % opt.heldout_every) == opt.heldout_every - 1
+    rng = np.random.default_rng(0)
+    tr = _block_choice(np.flatnonzero(~held), opt.max_fit_samples, rng)
+    ho = _block_choice(np.flatnonzero(held), opt.max_fit_samples // 2, rng)
+    S_tr, S_ho = Samples(idx[tr], tau[tr]), Samples(idx[ho], tau[ho])
+    y_tr, y_ho = gap[tr], gap[ho]
+    noise = noise_estimate(gap, tau)
+
+    chosen: list[tuple[Effect, dict, tuple]] = []
+    A_tr = np.zeros((len(tr), 0))
+    A_ho = np.zeros((len(ho), 0))
+    r_tr, r_ho = y_tr.copy(), y_ho.copy()
+    findings: list[Finding] = []
+    cols_tr: list[np.ndarray] = []
+    cols_ho: list[np.ndarray] = []
+    rms = lambda v: float(np.sqrt(np.mean(v * v))) if len(v) else 0.0  # noqa: E731
+    while len(findings) < opt.max_effects:
+        step(f"selection step {len(findings) + 1}")
+        rho = _rho(r_tr, S_tr.tau_s)
+        n_eff = max(len(tr) * (1 - rho) / (1 + rho), 10.0)
+        rss0 = float(r_tr @ r_tr)
+        q, _ = np.linalg.qr(A_tr) if A_tr.shape[1] else (np.zeros((len(tr), 0)), None)
+        trials = []
+        for eff in lib:
+            if any(eff.name == c[0].name for c in chosen):
+                continue
+            try:
+                nl = eff.search(ctx, S_tr, r_tr)
+            except (ValueError, np.linalg.LinAlgError):
+                nl = None
+            if nl is None:
+                continue
+            C_tr, labels = eff.columns(ctx, S_tr, nl)
+            if C_tr.shape[1] == 0 or not np.isfinite(C_tr).all():
+                continue
+            Cp = C_tr - q @ (q.T @ C_tr)
+            keep = np.sqrt((Cp * Cp).sum(0)) > 1e-9 * max(1.0, float(np.sqrt((C_tr * C_tr).sum(0)).max()))
+            if not keep.any():
+                continue
+            coef = _Fitter.solve(Cp[:, keep], r_tr)
+            fit = Cp[:, keep] @ coef
+            gain = float(r_tr @ r_tr - (r_tr - fit) @ (r_tr - fit))
+            trials.append((gain, eff, nl, C_tr, labels, int(keep.sum())))
+        if not trials:
+            break
+        def bic(t):
+            return n_eff * math.log(rss0 / max(rss0 - t[0], 1e-30)) - t[5] * math.log(n_eff)
+
+        trials.sort(key=lambda x: -bic(x))
+        accepted = None
+        for rank, (gain, eff, nl, C_tr, labels, p) in enumerate(trials):
+            dbic = bic(trials[rank])
+            if dbic < opt.bic_margin:
+                break  # sorted by BIC: nothing further can pass
+            A1 = np.column_stack([A_tr, C_tr])
+            beta = _Fitter.solve(A1, y_tr)
+            C_ho, _ = eff.columns(ctx, S_ho, nl)
+            B1 = np.column_stack([A_ho, C_ho])
+            new_tr, new_ho = y_tr - A1 @ beta, y_ho - B1 @ beta
+            if not eff.physical(beta[A_tr.shape[1]:]):
+                continue
+            if eff.implausible(eff.parameters(beta[A_tr.shape[1]:], labels, nl, ctx)):
+                continue
+            mse_ho = float(np.mean(r_ho ** 2))
+            need = max(opt.min_heldout_gain * mse_ho, (opt.min_effect_noise * noise) ** 2)
+            if mse_ho - float(np.mean(new_ho ** 2)) < need:
+                continue
+            accepted = (eff, nl, labels, C_tr, C_ho, beta, new_tr, new_ho, dbic, rank)
+            break
+        if accepted is None:
+            break
+        eff, nl, labels, C_tr, C_ho, beta, new_tr, new_ho, dbic, rank = accepted
+        others = [t for t in trials if t[1] is not eff]
+        ru = others[0] if others else None
+        f = Finding(eff.name, eff.title, {}, nl, labels, rms(r_tr), rms(new_tr), rms(r_ho),
+                    rms(new_ho), dbic)
+        if ru is not None:
+            f.runner_up = ru[1].name
+            f.runner_up_ratio = trials[rank][0] / max(ru[0], 1e-30)
+        findings.append(f)
+        chosen.append((eff, nl, labels))
+        cols_tr.append(C_tr)
+        cols_ho.append(C_ho)
+        A_tr = np.column_stack([A_tr, C_tr])
+        A_ho = np.column_stack([A_ho, C_ho])
+        r_tr, r_ho = new_tr, new_ho
+
+    # backward elimination: drop what the full model no longer needs, then rank by
+    # importance (what the fit loses without it) and recount before/after in that order
+    def fit(keep):
+        if not keep:
+            return y_tr.copy(), y_ho.copy()
+        A = np.column_stack([cols_tr[i] for i in keep])
+        B = np.column_stack([cols_ho[i] for i in keep])
+        beta = _Fitter.solve(A, y_tr)
+        return y_tr - A @ beta, y_ho - B @ beta
+
+    keep = list(range(len(chosen)))
+    while len(keep) > 1:
+        full_tr, full_ho = fit(keep)
+        rho = _rho(full_tr, S_tr.tau_s)
+        n_eff = max(len(tr) * (1 - rho) / (1 + rho), 10.0)
+        rss_full = float(full_tr @ full_tr)
+        worst, worst_score = None, math.inf
+        for i in keep:
+            red_tr, red_ho = fit([k for k in keep if k != i])
+            p = cols_tr[i].shape[1]
+            dbic = n_eff * math.log(float(red_tr @ red_tr) / max(rss_full, 1e-30)) - p * math.log(n_eff)
+            mse_ho = float(np.mean(red_ho ** 2))
+            need = max(opt.min_heldout_gain * mse_ho, (opt.min_effect_noise * noise) ** 2)
+            ok = dbic >= opt.bic_margin and mse_ho - float(np.mean(full_ho ** 2)) >= need
+            if not ok and dbic < worst_score:
+                worst, worst_score = i, dbic
+        if worst is None:
+            break
+        keep.remove(worst)
+    if keep:
+        full_tr, _ = fit(keep)
+        loss = {i: float(fit([k for k in keep if k != i])[0] @ fit([k for k in keep if k != i])[0])
+                - float(full_tr @ full_tr) for i in keep}
+        keep.sort(key=lambda i: -loss[i])
+    ranked = []
+    before_tr, before_ho = y_tr, y_ho
+    for n_in, i in enumerate(keep, start=1):
+        after_tr, after_ho = fit(keep[:n_in])
+        f = findings[i]
+        f.rms_before_um, f.rms_after_um = rms(before_tr), rms(after_tr)
+        f.heldout_rms_before_um, f.heldout_rms_after_um = rms(before_ho), rms(after_ho)
+        before_tr, before_ho = after_tr, after_ho
+        ranked.append(i)
+    findings = [findings[i] for i in ranked]
+    chosen = [chosen[i] for i in ranked]
+
+    # final fit on all fitted + held-out samples: parameters and contributions
+    allsel = np.sort(np.r_[tr, ho])
+    S_all = Samples(idx[allsel], tau[allsel])
+    blocks, slices = [], []
+    for eff, nl, labels in chosen:
+        C, _ = eff.columns(ctx, S_all, nl)
+        slices.append(slice(sum(b.shape[1] for b in blocks), sum(b.shape[1] for b in blocks) + C.shape[1]))
+        blocks.append(C)
+    y_all = gap[allsel]
+    if blocks:
+        A = np.column_stack(blocks)
+        beta = _Fitter.solve(A, y_all)
+        fitted = A @ beta
+    else:
+        beta, fitted = np.zeros(0), np.zeros(len(allsel))
+    resid = y_all - fitted
+    noise = noise_estimate(resid, tau[allsel])
+    series_idx = idx[allsel]
+    for f, (eff, nl, labels), sl in zip(findings, chosen, slices):
+        contrib = blocks[slices.index(sl)] @ beta[sl]
+        f.parameters = eff.parameters(beta[sl], labels, nl, ctx)
+        f.contribution_rms_um = rms(contrib)
+        f.where = _where(ctx, series_idx, tau[allsel], contrib)
+        # mimics: which other effects reproduce this finding's own signal
+        sig = contrib[np.isin(allsel, tr)]
+        tot = float(sig @ sig)
+        for other in lib:
+            if other is eff or tot <= 0:
+                continue
+            try:
+                nl2 = other.search(ctx, S_tr, sig)
+            except (ValueError, np.linalg.LinAlgError):
+                nl2 = None
+            if nl2 is None:
+                continue
+            C2, _ = other.columns(ctx, S_tr, nl2)
+            if C2.shape[1] == 0:
+                continue
+            c2 = _Fitter.solve(C2, sig)
+            r2 = 1.0 - float(((sig - C2 @ c2) ** 2).sum()) / tot
+            if r2 >= opt.mimic_r2:
+                f.mimics.append({"effect": other.name, "r2": round(r2, 4)})
+        f.mimics.sort(key=lambda m: -m["r2"])
+        ex_tr = f.rms_before_um ** 2 - f.rms_after_um ** 2
+        ex_ho = f.heldout_rms_before_um ** 2 - f.heldout_rms_after_um ** 2
+        generalises = ex_ho / ex_tr if ex_tr > 0 else 0.0
+        close = bool(f.mimics and f.mimics[0]["r2"] >= 0.95) or f.runner_up_ratio < 1.1
+        f.confidence = ("high" if generalises >= 0.5 and not close else
+                        "medium" if generalises >= 0.25 else "low")
+    gap_rms = rms(gap)
+    un_rms = rms(resid)
+    unexplained = {"rms_um": un_rms, "noise_um": noise,
+                   "significant": bool(un_rms > 1.25 * noise and un_rms - noise > 0.05),
+                   "where": _where(ctx, series_idx, tau[allsel], resid, noise=noise)}
+    gap_info = {"rms_um": gap_rms, "max_abs_um": float(np.max(np.abs(gap))) if len(gap) else 0.0,
+                "where": _where(ctx, idx, tau, gap, noise=noise, detail=True)}
+    return Diagnosis("", al, gap_info, findings, unexplained, noise,
+                     {"in_program": int(len(sel)), "fitted": int(len(tr)), "heldout": int(len(ho)),
+                      "dropouts": int((~np.isfinite(y)).sum())},
+                     {"tau": tau[allsel], "gap": y_all, "fitted": fitted, "residual": resid,
+                      "idx": series_idx, "held": held[allsel]})
+
+
+def _windows(tau: np.ndarray, flag: np.ndarray, min_gap_s: float = 0.5, limit: int = 12):
+    if not flag.any():
+        return []
+    order = np.argsort(tau)
+    t, f = tau[order], flag[order]
+    on = t[f]
+    splits = np.flatnonzero(np.diff(on) > min_gap_s)
+    starts = np.r_[on[0], on[splits + 1]]
+    ends = np.r_[on[splits], on[-1]]
+    wins = sorted(zip(starts, ends), key=lambda w: -(w[1] - w[0]))[:limit]
+    return [[round(float(a), 3), round(float(b), 3)] for a, b in sorted(wins)]
+
+
+def _where(ctx: Context, idx: np.ndarray, tau: np.ndarray, signal: np.ndarray,
+           noise: float | None = None, detail: bool = False) -> dict:
+    """Where ``signal`` lives: segments (RMS per segment, the strongest), phases,
+    near axis reversals or away from them, and time windows (program time)."""
+    seg = ctx.segment[idx]
+    names, inv = np.unique(seg.astype(str), return_inverse=True)
+    ssum = np.bincount(inv, signal * signal, len(names))
+    cnt = np.bincount(inv, None, len(names))
+    seg_rms = np.sqrt(ssum / np.maximum(cnt, 1))
+    peak = float(seg_rms.max()) if len(seg_rms) else 0.0
+    floor = (noise or 0.0) * 1.5
+    strong = [(str(names[i]), float(seg_rms[i])) for i in np.argsort(-seg_rms)
+              if seg_rms[i] >= max(0.5 * peak, floor) and seg_rms[i] > 0]
+    out = {"segments": [s for s, _ in strong[:20]],
+           "segment_rms_um": {s: round(v, 4) for s, v in strong[:20]}}
+    ph = ctx.phase[idx].astype(str)
+    out["phase_rms_um"] = {p: round(float(np.sqrt(np.mean(signal[ph == p] ** 2))), 4)
+                           for p in ("accelerate", "cruise", "decelerate", "dwell") if (ph == p).any()}
+    near = np.zeros(len(idx), dtype=bool)
+    for j in ctx.linear:
+        near |= ctx.since_reversal_s[idx, j] < 0.1
+    out["reversal_rms_um"] = {
+        "within_100ms_after_reversal": round(float(np.sqrt(np.mean(signal[near] ** 2))), 4) if near.any() else 0.0,
+        "elsewhere": round(float(np.sqrt(np.mean(signal[~near] ** 2))), 4) if (~near).any() else 0.0}
+    # time windows where the (50 ms smoothed) signal is above half its peak (and noise)
+    order = np.argsort(tau)
+    sm = np.abs(signal[order])
+    k = 50
+    if len(sm) > k:
+        sm = np.convolve(sm, np.ones(k) / k, mode="same")
+    thr = max(0.5 * float(sm.max()) if len(sm) else 0.0, 3.0 * (noise or 0.0) / math.sqrt(k))
+    flag = np.zeros(len(tau), dtype=bool)
+    flag[order] = sm >= thr
+    out["time_windows_s"] = _windows(tau, flag)
+    if detail:
+        out["layer"] = ctx.segment[0][0] if len(ctx.segment) else ""
+    return out

@@ -1,0 +1,545 @@
+"""The library of candidate effects: compact physical models of what a real ballbar
+trace contains beyond the simulated geometry (domain brief, section 3).
+
+Each effect gives regressor columns (um of bar reading per unit of a parameter) on a
+set of samples; effects with a nonlinear parameter (a time constant, a pitch, a
+frequency, a window) first search it on the current residual.  Axis effects act on a
+machine axis and reach the bar through ``Context.gain`` (the bar reading change per
+unit axis error), so they hold for 3- and 5-axis machines alike.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errormodel.chain import sensitivities
+from ..errormodel.model import ModelOptions, build_model
+from ..machine.kinematics import Kinematics
+from .context import Context
+
+STICK_SLIP_SPEED_MM_PER_S = 200.0 / 60.0
+
+
+@dataclass(frozen=True, slots=True)
+class Samples:
+    """A set of trace samples: ``idx : (n,)`` nearest trajectory sample, ``tau_s : (n,)``
+    exact program time."""
+
+    idx: np.ndarray
+    tau_s: np.ndarray
+
+    def take(self, keep: np.ndarray) -> "Samples":
+        return Samples(self.idx[keep], self.tau_s[keep])
+
+
+@dataclass(frozen=True, slots=True)
+class Design:
+    effect: str
+    labels: tuple[str, ...]
+    nonlinear: dict = field(default_factory=dict)
+
+
+def _proj_gain(cols: np.ndarray, r: np.ndarray) -> float:
+    """Reduction of ``|r|^2`` by least squares on ``cols``."""
+    if cols.size == 0:
+        return 0.0
+    coef, *_ = np.linalg.lstsq(cols, r, rcond=None)
+    fit = cols @ coef
+    return float(r @ r - (r - fit) @ (r - fit))
+
+
+def _gain2(s: np.ndarray, c: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Projection gains of ``r (n,)`` on many column pairs ``s, c : (m, n)`` at once."""
+    ss, cc, sc = (s * s).sum(1), (c * c).sum(1), (s * c).sum(1)
+    sr, cr = s @ r, c @ r
+    det = ss * cc - sc * sc
+    det = np.where(det > 1e-300, det, np.inf)
+    a = (cc * sr - sc * cr) / det
+    b = (ss * cr - sc * sr) / det
+    return a * sr + b * cr
+
+
+class Effect:
+    name = ""
+    title = ""
+    unit_note = ""
+
+    def search(self, ctx: Context, s: Samples, r: np.ndarray) -> dict | None:
+        return {}
+
+    def columns(self, ctx: Context, s: Samples, nl: dict) -> tuple[np.ndarray, tuple[str, ...]]:
+        raise NotImplementedError
+
+    def parameters(self, coef: np.ndarray, labels, nl: dict, ctx: Context) -> dict:
+        out = {k: float(v) for k, v in nl.items()}
+        out.update({lab: float(c) for lab, c in zip(labels, coef)})
+        return out
+
+    def physical(self, coef: np.ndarray) -> bool:
+        return True
+
+    #: parameter -> largest plausible magnitude on a machining centre (about twice the
+    #: "bad" end of the domain brief's table); a fit beyond it is not this effect
+    limits: dict = {}
+
+    def implausible(self, params: dict) -> str | None:
+        for key, value in params.items():
+            for pattern, lim in self.limits.items():
+                if isinstance(value, float) and _match(key, pattern) and abs(value) > lim:
+                    return f"{key} = {value:.4g} exceeds the plausible {lim:g}"
+        return None
+
+
+def _match(key: str, pattern: str) -> bool:
+    if pattern.endswith("*"):
+        return key.startswith(pattern[:-1])
+    if pattern.startswith("*"):
+        return key.endswith(pattern[1:])
+    return key == pattern
+
+
+def _lin(ctx: Context):
+    return [j for j in ctx.linear]
+
+
+class SetupOffset(Effect):
+    name, title = "setup_offset", "ball centring / set-up offset of the pivot"
+    limits = {"d*": 2000.0}
+
+    def columns(self, ctx, s, nl):
+        u = ctx.u[s.idx]
+        return -u, ("dx_um", "dy_um", "dz_um")
+
+
+class BarLength(Effect):
+    name, title = "bar_length", "bar length offset (calibration, constant thermal growth)"
+    limits = {"dL_um": 1000.0}
+
+    def columns(self, ctx, s, nl):
+        return np.ones((len(s.idx), 1)), ("dL_um",)
+
+
+class ThermalDrift(Effect):
+    name, title = "thermal_drift", "slow drift in time: radial growth and pivot-to-spindle drift"
+    limits = {"*_um_per_h": 100.0}
+
+    def columns(self, ctx, s, nl):
+        th = s.tau_s / 3600.0
+        u = ctx.u[s.idx]
+        cols = np.column_stack([th, th * th, u[:, 0] * th, u[:, 1] * th, u[:, 2] * th])
+        return cols, ("radial_um_per_h", "radial_um_per_h2", "x_um_per_h", "y_um_per_h",
+                      "z_um_per_h")
+
+    def parameters(self, coef, labels, nl, ctx):
+        out = {lab: float(c) for lab, c in zip(labels, coef)}
+        # the radial rate at the end of the program (the quadratic bends it)
+        out["radial_end_um_per_h"] = out["radial_um_per_h"] + 2 * out.pop("radial_um_per_h2") * (
+            ctx.duration_s / 3600.0)
+        return out
+
+
+class ServoLag(Effect):
+    name, title = "servo_lag", "equal servo lag of all axes: radius shrink ~ v^2"
+    limits = {"tau_ms": 200.0}
+    grid_ms = (5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0, 65.0, 80.0, 100.0)
+
+    def __init__(self):
+        self._cache: dict = {}
+
+    def shrink_um(self, ctx: Context, tau_ms: float) -> np.ndarray:
+        """Radial deviation (um) when every axis follows its command through a
+        first-order lag ``tau_ms`` (Kv = 1/tau), on the whole trajectory grid."""
+        key = (id(ctx), round(tau_ms, 9))
+        if key not in self._cache:
+            if len(self._cache) > 64:
+                self._cache.clear()
+            self._cache[key] = lagged_radial_um(ctx, tau_ms * 1e-3)
+        return self._cache[key]
+
+    def search(self, ctx, s, r):
+        gains = [_proj_gain(self.shrink_um(ctx, t)[s.idx][:, None], r) for t in self.grid_ms]
+        k = int(np.argmax(gains))
+        lo, hi = self.grid_ms[max(k - 1, 0)], self.grid_ms[min(k + 1, len(self.grid_ms) - 1)]
+        fine = np.linspace(lo, hi, 9)
+        gains = [_proj_gain(self.shrink_um(ctx, t)[s.idx][:, None], r) for t in fine]
+        return {"tau_ms": float(fine[int(np.argmax(gains))])}
+
+    def columns(self, ctx, s, nl):
+        return self.shrink_um(ctx, nl["tau_ms"])[s.idx][:, None], ("scale",)
+
+    def physical(self, coef):
+        return coef[0] > 0
+
+    def parameters(self, coef, labels, nl, ctx):
+        # the shrink grows as tau^2: an amplitude factor c means tau * sqrt(c)
+        tau = nl["tau_ms"] * float(np.sqrt(max(coef[0], 0.0)))
+        return {"tau_ms": tau, "kv_per_s": (1e3 / tau) if tau > 0 else float("inf")}
+
+
+def lagged_radial_um(ctx: Context, tau_s: float) -> np.ndarray:
+    """First-order lag of the ball path (each table-frame coordinate, i.e. each linear
+    axis of a 3-axis machine) by ``tau_s``, as radial deviation in um."""
+    from scipy.signal import lfilter
+
+    dt = float(np.median(np.diff(ctx.t_s)))
+    k = 2.0 * tau_s / dt
+    p0 = ctx.ball_mm[0]
+    lagged = lfilter([1.0, 1.0], [1.0 + k, 1.0 - k], ctx.ball_mm - p0, axis=0) + p0
+    return (np.linalg.norm(lagged - ctx.pivot_mm, axis=1) - ctx.length_mm) * 1e3
+
+
+class ServoMismatch(Effect):
+    name, title = "servo_mismatch", "different servo lags per axis: ~v, flips with direction"
+    limits = {"lag_*": 8.0}
+
+    def _axes(self, ctx):
+        moving = [j for j in range(len(ctx.axis_names))
+                  if np.ptp(ctx.q[:, j]) > (1e-6 if j not in ctx.linear else 1e-3)]
+        return moving[1:], (moving[0] if moving else 0)
+
+    def columns(self, ctx, s, nl):
+        others, ref = self._axes(ctx)
+        # axis error -qdot * lag; um of reading per ms of lag
+        cols = [-(ctx.gain[s.idx, j] * ctx.qdot[s.idx, j]) for j in others]
+        labels = tuple(f"lag_{ctx.axis_names[j]}_minus_{ctx.axis_names[ref]}_ms" for j in others)
+        return np.column_stack(cols) if cols else np.zeros((len(s.idx), 0)), labels
+
+
+class Backlash(Effect):
+    name, title = "backlash", "lost motion: a step at each reversal of an axis (play operator)"
+    limits = {"play_*": 80.0}
+    grid_um = (0.5, 1.0, 2.0, 3.0, 4.5, 6.5, 9.0, 13.0, 18.0, 25.0, 35.0, 50.0)
+
+    def search(self, ctx, s, r):
+        out = {}
+        for j in _lin(ctx):
+            if not len(ctx.reversal_times[j]):
+                continue
+            g = [_proj_gain(self._col(ctx, s, j, b)[:, None], r) for b in self.grid_um]
+            out[f"width_{ctx.axis_names[j]}_um"] = float(self.grid_um[int(np.argmax(g))])
+        return out or None
+
+    def _col(self, ctx, s, j, width_um):
+        """Bar reading (um per um of play) of a play operator of ``width_um`` on axis j:
+        after a reversal the axis stands until the command has moved the play."""
+        i = s.idx
+        x = ctx.q[i, j]
+        d = ctx.direction[i, j]
+        x_rev = ctx.position_at_reversal[i, j]
+        b = width_um * 1e-3
+        moved = np.abs(x - x_rev)
+        dev = np.where(np.isfinite(x_rev) & (moved < b), x_rev - x + d * b / 2.0, -d * b / 2.0)
+        return ctx.gain[i, j] * dev / b
+
+    def columns(self, ctx, s, nl):
+        axes = [j for j in _lin(ctx) if f"width_{ctx.axis_names[j]}_um" in nl]
+        cols = [self._col(ctx, s, j, nl[f"width_{ctx.axis_names[j]}_um"]) for j in axes]
+        return np.column_stack(cols), tuple(f"play_{ctx.axis_names[j]}_um" for j in axes)
+
+    def parameters(self, coef, labels, nl, ctx):
+        return {lab: float(c) for lab, c in zip(labels, coef)}
+
+
+class ReversalSpike(Effect):
+    name, title = "reversal_spike", "decaying pulse after an axis reversal (friction)"
+    limits = {"height_*": 50.0}
+    grid_ms = (5.0, 8.0, 12.0, 18.0, 25.0, 35.0, 50.0, 70.0, 100.0, 140.0)
+
+    def _cols(self, ctx, s, tau_ms):
+        cols = []
+        for j in _lin(ctx):
+            since = ctx.since_reversal_s[s.idx, j]
+            decay = np.exp(-np.minimum(since, 50.0) / (tau_ms * 1e-3))
+            cols.append(-ctx.gain[s.idx, j] * ctx.direction[s.idx, j] * decay)
+        return np.column_stack(cols)
+
+    def search(self, ctx, s, r):
+        if not any(len(ctx.reversal_times[j]) for j in _lin(ctx)):
+            return None
+        gains = [_proj_gain(self._cols(ctx, s, t), r) for t in self.grid_ms]
+        k = int(np.argmax(gains))
+        lo, hi = self.grid_ms[max(k - 1, 0)], self.grid_ms[min(k + 1, len(self.grid_ms) - 1)]
+        fine = np.geomspace(lo, hi, 9)
+        gains = [_proj_gain(self._cols(ctx, s, t), r) for t in fine]
+        return {"tau_ms": float(fine[int(np.argmax(gains))])}
+
+    def columns(self, ctx, s, nl):
+        return self._cols(ctx, s, nl["tau_ms"]), tuple(
+            f"height_{ctx.axis_names[j]}_um" for j in _lin(ctx))
+
+
+class LateralPlay(Effect):
+    name, title = "lateral_play", "a step across the reversing axis (guide play)"
+    limits = {"play_*": 15.0}
+
+    def columns(self, ctx, s, nl):
+        cols, labels = [], []
+        for j in _lin(ctx):
+            if not len(ctx.reversal_times[j]):
+                continue
+            for k in _lin(ctx):
+                if k != j:
+                    cols.append(ctx.gain[s.idx, k] * ctx.direction[s.idx, j] / 2.0)
+                    labels.append(f"play_{ctx.axis_names[k]}_on_{ctx.axis_names[j]}_reversal_um")
+        return (np.column_stack(cols) if cols else np.zeros((len(s.idx), 0))), tuple(labels)
+
+
+class CyclicError(Effect):
+    name, title = "cyclic_error", "ripple locked to an axis position (scale / screw pitch)"
+    limits = {"amplitude_um": 5.0}
+    pitch_range_mm = (4.0, 25.0)
+
+    def search(self, ctx, s, r):
+        best = (0.0, None, None, None)
+        n = len(s.idx)
+        sub = np.sort(np.random.default_rng(1).choice(n, min(n, 8000), replace=False))
+        for j in _lin(ctx):
+            x = ctx.q[s.idx, j]
+            span = float(np.ptp(x))
+            if span < 2 * self.pitch_range_mm[0]:
+                continue
+            g = ctx.gain[s.idx, j]
+            lo, hi = self.pitch_range_mm
+            step = 1.0 / (8.0 * span)  # phase error <= pi/4 across the span
+            inv = np.arange(1.0 / hi, 1.0 / lo, step)
+            gains = np.zeros(len(inv))
+            xs, gs, rs = x[sub], g[sub], r[sub]
+            for b in range(0, len(inv), 64):
+                ph = 2 * np.pi * xs[None, :] * inv[b:b + 64, None]
+                gains[b:b + 64] = _gain2(gs * np.sin(ph), gs * np.cos(ph), rs)
+            k = int(np.argmax(gains))
+            if gains[k] > best[0]:
+                best = (float(gains[k]), j, float(inv[k]), step)
+        if best[1] is None:
+            return None
+        # refine the best pitch on all samples
+        j, step = best[1], best[3]
+        x, g = ctx.q[s.idx, j], ctx.gain[s.idx, j]
+        fine = np.linspace(best[2] - step, best[2] + step, 9)
+        ph = 2 * np.pi * x[None, :] * fine[:, None]
+        gf = _gain2(g * np.sin(ph), g * np.cos(ph), r)
+        best = (0.0, j, float(1.0 / fine[int(np.argmax(gf))]))
+        if best[1] is None:
+            return None
+        return {"axis": ctx.axis_names[best[1]], "pitch_mm": best[2]}
+
+    def columns(self, ctx, s, nl):
+        j = ctx.axis_names.index(nl["axis"])
+        ph = 2 * np.pi * ctx.q[s.idx, j] / nl["pitch_mm"]
+        g = ctx.gain[s.idx, j]
+        return np.column_stack([g * np.sin(ph), g * np.cos(ph)]), ("sin_um", "cos_um")
+
+    def parameters(self, coef, labels, nl, ctx):
+        return {"axis": nl["axis"], "pitch_mm": nl["pitch_mm"],
+                "amplitude_um": float(np.hypot(*coef)),
+                "phase_deg": float(np.degrees(np.arctan2(coef[1], coef[0])))}
+
+
+class Vibration(Effect):
+    name, title = "vibration", "ripple locked to time (machine or spindle vibration)"
+    limits = {"amplitude_*": 10.0}
+    band_hz = (8.0, 250.0)
+
+    def search(self, ctx, s, r):
+        """Spectral peak of the residual weighted by each axis' gain (a vibration along
+        an axis reaches the bar modulated by that gain), refined by least squares."""
+        if len(s.tau_s) < 1000:
+            return None
+        order = np.argsort(s.tau_s)
+        t = s.tau_s[order]
+        rate = 1000.0
+        n = int((t[-1] - t[0]) * rate) + 1
+        k = np.clip(np.round((t - t[0]) * rate).astype(int), 0, n - 1)
+        nfft = 1 << int(np.ceil(np.log2(n)))
+        freqs = np.fft.rfftfreq(nfft, 1.0 / rate)
+        band = (freqs >= self.band_hz[0]) & (freqs <= self.band_hz[1])
+        if not band.any():
+            return None
+        win = np.hanning(n)
+        sub = np.sort(np.random.default_rng(2).choice(len(r), min(len(r), 60000), replace=False))
+        best = (0.0, None)
+        for j in _lin(ctx):
+            g = ctx.gain[s.idx, j]
+            grid = np.zeros(n)
+            grid[k] = (r * g)[order]
+            spec = np.abs(np.fft.rfft(grid * win, nfft))
+            i = int(np.flatnonzero(band)[np.argmax(spec[band])])
+            df = rate / nfft
+            cand = i * df + np.linspace(-1.5 * df, 1.5 * df, 31)
+            ph = 2 * np.pi * cand[:, None] * s.tau_s[None, sub]
+            gains = _gain2(g[sub] * np.sin(ph), g[sub] * np.cos(ph), r[sub])
+            m = int(np.argmax(gains))
+            if gains[m] > best[0]:
+                best = (float(gains[m]), float(cand[m]))
+        if best[1] is None:
+            return None
+        return {"frequency_hz": best[1]}
+
+    def columns(self, ctx, s, nl):
+        ph = 2 * np.pi * nl["frequency_hz"] * s.tau_s
+        sn, cs = np.sin(ph), np.cos(ph)
+        cols, labels = [], []
+        for j in _lin(ctx):
+            g = ctx.gain[s.idx, j]
+            cols += [g * sn, g * cs]
+            labels += [f"{ctx.axis_names[j]}_sin_um", f"{ctx.axis_names[j]}_cos_um"]
+        return np.column_stack(cols), tuple(labels)
+
+    def parameters(self, coef, labels, nl, ctx):
+        out = {"frequency_hz": nl["frequency_hz"]}
+        for n, j in enumerate(_lin(ctx)):
+            out[f"amplitude_{ctx.axis_names[j]}_um"] = float(np.hypot(coef[2 * n], coef[2 * n + 1]))
+        return out
+
+
+class StickSlip(Effect):
+    name, title = "stick_slip", "saw-tooth while an axis crawls near a reversal"
+    limits = {"amplitude_*": 8.0}
+    grid_ms = (15.0, 25.0, 40.0, 60.0, 90.0, 130.0, 200.0)
+
+    def _cols(self, ctx, s, period_ms):
+        cols = []
+        for j in _lin(ctx):
+            slow = (np.abs(ctx.qdot[:, j]) < STICK_SLIP_SPEED_MM_PER_S) & ctx.moving
+            enter = np.flatnonzero(np.diff(np.r_[False, slow]).astype(bool) & slow)
+            last = np.full(ctx.n, -1)
+            last[enter] = enter
+            last = np.maximum.accumulate(last)
+            i = s.idx
+            since = ctx.t_s[i] - ctx.t_s[np.maximum(last[i], 0)]
+            x = since / (period_ms * 1e-3)
+            saw = 2.0 * (x - np.floor(x)) - 1.0
+            cols.append(ctx.gain[i, j] * saw * slow[i])
+        return np.column_stack(cols)
+
+    def search(self, ctx, s, r):
+        gains = [_proj_gain(self._cols(ctx, s, p), r) for p in self.grid_ms]
+        k = int(np.argmax(gains))
+        lo, hi = self.grid_ms[max(k - 1, 0)], self.grid_ms[min(k + 1, len(self.grid_ms) - 1)]
+        fine = np.geomspace(lo, hi, 9)
+        gains = [_proj_gain(self._cols(ctx, s, p), r) for p in fine]
+        return {"period_ms": float(fine[int(np.argmax(gains))])}
+
+    def columns(self, ctx, s, nl):
+        return self._cols(ctx, s, nl["period_ms"]), tuple(
+            f"amplitude_{ctx.axis_names[j]}_um" for j in _lin(ctx))
+
+
+class _ModelColumns(Effect):
+    """Columns from the geometric error model's first-order sensitivities."""
+
+    wanted: tuple[str, ...] = ()
+
+    def __init__(self, machine, travel):
+        self._kin = Kinematics(machine)
+        self._model = build_model(machine, travel, ModelOptions(linear_order=1, squareness=True,
+                                                                location=False))
+        self._names = [n for n in self.wanted if n in self._model.names]
+        self._travel = dict((a, (lo, hi)) for a, lo, hi in self._model.travel)
+
+    def columns(self, ctx, s, nl):
+        if not self._names:
+            return np.zeros((len(s.idx), 0)), ()
+        from ..errormodel.model import ErrorModel
+
+        sub = ErrorModel(self._model.axes, self._model.rotary,
+                         tuple(self._model.parameters[self._model.index(n)] for n in self._names),
+                         self._model.travel, self._model.options)
+        cols = sensitivities(self._kin, sub, ctx.q[s.idx], ctx.pivot_mm)
+        return cols, tuple(self._names)
+
+
+class Squareness(_ModelColumns):
+    name, title = "squareness", "out-of-squareness of the linear axes (shear)"
+    limits = {"*_urad": 300.0}
+    wanted = ("EC0Y", "EB0Z", "EA0Z")
+
+    def parameters(self, coef, labels, nl, ctx):
+        return {f"{n}_urad": float(c) for n, c in zip(labels, coef)}
+
+
+class ScaleMismatch(_ModelColumns):
+    name, title = "scale_mismatch", "linear positioning (scale) error per axis"
+    limits = {"*_um_per_m": 200.0}
+    wanted = ("EXX.P1", "EYY.P1", "EZZ.P1")
+
+    def parameters(self, coef, labels, nl, ctx):
+        out = {}
+        for n, c in zip(labels, coef):
+            axis = n[2]
+            lo, hi = self._travel.get(axis, (0.0, 1.0))
+            out[f"{axis}_um_per_m"] = float(c / max((hi - lo) / 2.0, 1e-9) * 1e3)
+        return out
+
+
+class ContourSmoothing(Effect):
+    name, title = "contour_smoothing", "the control shortcuts the path (spatial low-pass)"
+    limits = {"shortcut_um": 40.0}
+    grid_mm = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0)
+
+    def __init__(self):
+        self._cache: dict = {}
+
+    def shortcut_um(self, ctx: Context, window_mm: float) -> np.ndarray:
+        """Radial deviation (um) of the path averaged over ``window_mm`` of arc length,
+        on the whole trajectory grid (zero while standing)."""
+        key = (id(ctx), round(window_mm, 9))
+        if key not in self._cache:
+            if len(self._cache) > 64:
+                self._cache.clear()
+            self._cache[key] = smoothed_radial_um(ctx, window_mm)
+        return self._cache[key]
+
+    def search(self, ctx, s, r):
+        gains = [_proj_gain(self.shortcut_um(ctx, w)[s.idx][:, None], r) for w in self.grid_mm]
+        k = int(np.argmax(gains))
+        lo, hi = self.grid_mm[max(k - 1, 0)], self.grid_mm[min(k + 1, len(self.grid_mm) - 1)]
+        fine = np.linspace(lo, hi, 9)
+        gains = [_proj_gain(self.shortcut_um(ctx, w)[s.idx][:, None], r) for w in fine]
+        return {"window_mm": float(fine[int(np.argmax(gains))])}
+
+    def columns(self, ctx, s, nl):
+        return self.shortcut_um(ctx, nl["window_mm"])[s.idx][:, None], ("scale",)
+
+    def physical(self, coef):
+        return coef[0] > 0
+
+    def parameters(self, coef, labels, nl, ctx):
+        w = nl["window_mm"] * float(np.sqrt(max(coef[0], 0.0)))
+        return {"window_mm": w, "shortcut_um": float(w * w / (24.0 * np.median(ctx.length_mm)) * 1e3)}
+
+
+def smoothed_radial_um(ctx: Context, window_mm: float) -> np.ndarray:
+    out = np.zeros(ctx.n)
+    h = window_mm / 2.0
+    for rid in range(int(ctx.run_id.max()) + 1 if ctx.n else 0):
+        sel = np.flatnonzero(ctx.run_id == rid)
+        if len(sel) < 3:
+            continue
+        p = ctx.ball_mm[sel]
+        ds = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        s = np.r_[0.0, np.cumsum(ds)]
+        if s[-1] <= 0:
+            continue
+        mid = 0.5 * (p[1:] + p[:-1]) * ds[:, None]
+        cum = np.vstack([np.zeros(3), np.cumsum(mid, axis=0)])
+        lo = np.clip(s - h, 0.0, s[-1])
+        hi = np.clip(s + h, 0.0, s[-1])
+        width = np.maximum(hi - lo, 1e-12)
+        avg = np.column_stack([(np.interp(hi, s, cum[:, k]) - np.interp(lo, s, cum[:, k])) / width
+                               for k in range(3)])
+        out[sel] = (np.linalg.norm(avg - ctx.pivot_mm, axis=1) - ctx.length_mm[sel]) * 1e3
+    return out
+
+
+def library(machine, travel) -> list[Effect]:
+    return [SetupOffset(), BarLength(), ThermalDrift(), ServoLag(), ServoMismatch(), Backlash(),
+            ReversalSpike(), LateralPlay(), CyclicError(), Vibration(), StickSlip(),
+            Squareness(machine, travel), ScaleMismatch(machine, travel), ContourSmoothing()]
+
+
+EFFECT_NAMES = ("setup_offset", "bar_length", "thermal_drift", "servo_lag", "servo_mismatch",
+                "backlash", "reversal_spike", "lateral_play", "cyclic_error", "vibration",
+                "stick_slip", "squareness", "scale_mismatch", "contour_smoothing")

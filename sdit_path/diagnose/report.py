@@ -1,0 +1,160 @@
+"""The diagnosis as JSON, as text, and as pictures (PNG bytes; no file IO here)."""
+
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+
+from .context import Context
+from .diagnose import Diagnosis
+from .effects import EFFECT_NAMES
+
+
+def _clean(v):
+    if isinstance(v, float):
+        return None if not math.isfinite(v) else round(v, 6)
+    if isinstance(v, dict):
+        return {k: _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_clean(x) for x in v]
+    if isinstance(v, (np.floating,)):
+        return _clean(float(v))
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    return v
+
+
+def to_json(d: Diagnosis) -> dict:
+    al = d.alignment
+    out = {
+        "program": d.program,
+        "alignment": {"offset_s": al.offset_s, "clock_ppm": al.clock_ppm,
+                      "offset_std_s": al.offset_std_s, "clock_std_ppm": al.clock_std_ppm,
+                      "note": "measured t = offset_s + program t * (1 + clock_ppm 1e-6); a "
+                              "following delay of the machine is part of the offset"},
+        "samples": d.samples,
+        "noise_um": d.noise_um,
+        "gap": d.gap,
+        "findings": [{
+            "rank": k + 1, "effect": f.effect, "title": f.title, "parameters": f.parameters,
+            "where": {"segments": f.where.get("segments", []),
+                      "time_windows_s": f.where.get("time_windows_s", []),
+                      "phase_rms_um": f.where.get("phase_rms_um", {}),
+                      "reversal_rms_um": f.where.get("reversal_rms_um", {})},
+            "rms_before_um": f.rms_before_um, "rms_after_um": f.rms_after_um,
+            "heldout_rms_before_um": f.heldout_rms_before_um,
+            "heldout_rms_after_um": f.heldout_rms_after_um,
+            "contribution_rms_um": f.contribution_rms_um,
+            "delta_bic": f.delta_bic, "confidence": f.confidence,
+            "mimics": f.mimics, "runner_up": f.runner_up,
+            "runner_up_evidence_ratio": f.runner_up_ratio,
+        } for k, f in enumerate(d.findings)],
+        "unexplained": d.unexplained,
+        "library": list(EFFECT_NAMES),
+    }
+    return _clean(out)
+
+
+def summary_text(d: Diagnosis) -> str:
+    al = d.alignment
+    lines = [f"Program {d.program}: {d.samples['in_program']} samples in the program "
+             f"({d.samples['dropouts']} dropouts); fitted on {d.samples['fitted']}, "
+             f"{d.samples['heldout']} held out (every third stretch).",
+             f"Alignment: program starts at {al.offset_s:.4f} s of the recording "
+             f"(+- {al.offset_std_s * 1e3:.2f} ms), instrument clock {al.clock_ppm:+.1f} ppm "
+             f"(+- {al.clock_std_ppm:.1f}).",
+             f"Gap (measured - simulated): RMS {d.gap['rms_um']:.3f} um, max |gap| "
+             f"{d.gap['max_abs_um']:.3f} um; sensor noise about {d.noise_um:.3f} um."]
+    w = d.gap["where"]
+    if w.get("segments"):
+        lines.append("  strongest in: " + ", ".join(
+            f"{s} ({w['segment_rms_um'][s]:.2f})" for s in w["segments"][:8]))
+    if w.get("phase_rms_um"):
+        lines.append("  by phase (RMS um): " + ", ".join(f"{k} {v:.3f}" for k, v in w["phase_rms_um"].items()))
+    rv = w.get("reversal_rms_um", {})
+    if rv:
+        lines.append(f"  within 100 ms after an axis reversal {rv['within_100ms_after_reversal']:.3f} um, "
+                     f"elsewhere {rv['elsewhere']:.3f} um")
+    if not d.findings:
+        lines.append("Findings: none - no effect of the library is supported by the data.")
+    for k, f in enumerate(d.findings, start=1):
+        par = ", ".join(f"{a} {b:.4g}" if isinstance(b, float) else f"{a} {b}"
+                        for a, b in f.parameters.items())
+        lines.append(f"{k}. {f.effect} ({f.confidence} confidence): {par}")
+        lines.append(f"   RMS {f.rms_before_um:.3f} -> {f.rms_after_um:.3f} um fitted, "
+                     f"held-out {f.heldout_rms_before_um:.3f} -> {f.heldout_rms_after_um:.3f} um")
+        if f.mimics:
+            lines.append("   mimicked by: " + ", ".join(f"{m['effect']} (R2 {m['r2']:.2f})" for m in f.mimics)
+                         + " - the same signature; separate them by a second feed, direction or set-up")
+        if f.where.get("segments"):
+            lines.append("   where: " + ", ".join(f.where["segments"][:8]))
+    u = d.unexplained
+    verdict = "NOT explained by the library" if u["significant"] else "at the noise level"
+    lines.append(f"Unexplained: RMS {u['rms_um']:.3f} um ({verdict}).")
+    if u["significant"] and u["where"].get("segments"):
+        lines.append("  strongest in: " + ", ".join(u["where"]["segments"][:8]))
+        if u["where"].get("time_windows_s"):
+            lines.append("  time windows (s): " + ", ".join(
+                f"{a:.1f}-{b:.1f}" for a, b in u["where"]["time_windows_s"][:8]))
+    return "\n".join(lines) + "\n"
+
+
+def pictures(d: Diagnosis, ctx: Context) -> dict[str, bytes]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = d.series
+    order = np.argsort(s["tau"])
+    t, gap, fit, res = s["tau"][order], s["gap"][order], s["fitted"][order], s["residual"][order]
+    step = max(1, len(t) // 40000)
+    out = {}
+    fig, ax = plt.subplots(2, 1, figsize=(12, 6.5), sharex=True)
+    ax[0].plot(t[::step], gap[::step], lw=0.4, color="0.4", label="gap (measured - simulated)")
+    ax[0].plot(t[::step], fit[::step], lw=0.6, color="C1", label="findings fitted")
+    ax[0].set_ylabel("um")
+    ax[0].legend(loc="upper right", fontsize=8)
+    ax[1].plot(t[::step], res[::step], lw=0.4, color="C0", label="unexplained residual")
+    ax[1].set_ylabel("um")
+    ax[1].set_xlabel("program time (s)")
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, f in enumerate(d.findings):
+        for a, b in f.where.get("time_windows_s", [])[:12]:
+            ax[0].axvspan(a, b, color=colors[(k + 2) % len(colors)], alpha=0.15, lw=0)
+        ax[0].plot([], [], color=colors[(k + 2) % len(colors)], lw=6, alpha=0.3,
+                   label=f"{k + 1}. {f.effect}")
+    ax[0].legend(loc="upper right", fontsize=8)
+    dwell = ctx.phase == "dwell"
+    edges = np.flatnonzero(np.diff(np.r_[0, dwell.astype(int), 0]))
+    for a, b in zip(edges[::2], edges[1::2]):
+        ax[1].axvspan(ctx.t_s[a], ctx.t_s[min(b, ctx.n - 1)], color="0.85", lw=0)
+    ax[1].legend(loc="upper right", fontsize=8)
+    fig.suptitle(f"{d.program}: gap RMS {d.gap['rms_um']:.3f} um -> unexplained "
+                 f"{d.unexplained['rms_um']:.3f} um (grey bands: dwells)")
+    out["residual_time"] = _png(fig, plt)
+    fig = plt.figure(figsize=(12, 5.5))
+    p = ctx.ball_mm[s["idx"]] - ctx.pivot_mm
+    lim = float(np.percentile(np.abs(s["residual"]), 99)) or 1.0
+    for k, (vals, title) in enumerate(((s["gap"], "gap"), (s["residual"], "unexplained"))):
+        ax = fig.add_subplot(1, 2, k + 1, projection="3d")
+        sub = slice(None, None, max(1, len(p) // 20000))
+        vl = float(np.percentile(np.abs(vals), 99)) or lim
+        sc = ax.scatter(p[sub, 0], p[sub, 1], p[sub, 2], c=vals[sub], s=1.5, cmap="coolwarm",
+                        vmin=-vl, vmax=vl)
+        ax.set_title(f"{title} over the hemisphere (um)")
+        ax.set_xlabel("x mm")
+        ax.set_ylabel("y mm")
+        ax.set_zlabel("z mm")
+        fig.colorbar(sc, ax=ax, shrink=0.6)
+    out["residual_hemisphere"] = _png(fig, plt)
+    return out
+
+
+def _png(fig, plt) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, metadata={"Software": None})
+    plt.close(fig)
+    return buf.getvalue()
