@@ -6,7 +6,7 @@ Everything here follows from the plan (trajectory + kinematics); nothing from a 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -47,6 +47,27 @@ class Context:
     linear: tuple[int, ...]
     pivot_mm: np.ndarray
     run_id: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    jerk: np.ndarray
+    arc_mm: np.ndarray
+    arc_integral: np.ndarray
+    run_start_mm: np.ndarray
+    run_end_mm: np.ndarray
+    _slow: dict = field(default_factory=dict)
+
+    def slow_state(self, j: int, speed: float) -> tuple[np.ndarray, np.ndarray]:
+        """Whether axis j crawls (moving, slower than ``speed``) and the time since it
+        began to, per grid sample (cached)."""
+        key = (j, speed)
+        if key not in self._slow:
+            slow = (np.abs(self.qdot[:, j]) < speed) & self.moving
+            enter = np.flatnonzero(np.diff(np.r_[False, slow]).astype(bool) & slow)
+            last = np.full(self.n, -1)
+            last[enter] = enter
+            last = np.maximum.accumulate(last)
+            self._slow[key] = (slow, self.t_s - self.t_s[np.maximum(last, 0)])
+        return self._slow[key]
 
     @property
     def n(self) -> int:
@@ -113,6 +134,22 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     # runs: maximal stretches of motion between stops
     run_id = np.cumsum(np.diff(np.r_[0, moving.astype(int)]) == 1) * moving - 1
     linear = tuple(j for j in range(m) if not kin.axes[j].is_rotary)
+    acc = np.gradient(v, t, axis=0) if len(t) > 2 else np.zeros_like(v)
+    jerk = np.gradient(acc, t, axis=0) if len(t) > 2 else np.zeros_like(v)
+    # arc length along each run on one increasing axis (runs spaced apart), and the
+    # running integral of the position over it (for arc-length averages)
+    ds = np.r_[0.0, np.linalg.norm(np.diff(ball, axis=0), axis=1)]
+    ds[~moving] = 0.0
+    new_run = np.r_[True, run_id[1:] != run_id[:-1]]
+    ds[new_run] = 1e3  # a gap between runs no window bridges
+    arc = np.cumsum(ds)
+    mid = np.r_[ball[:1] * 0, 0.5 * (ball[1:] + ball[:-1])] * ds[:, None]
+    mid[new_run] = 0.0
+    integral = np.cumsum(mid, axis=0)
+    first = np.maximum.accumulate(np.where(new_run, np.arange(len(t)), 0))
+    last_idx = np.r_[np.flatnonzero(new_run)[1:] - 1, len(t) - 1]
+    run_no = np.cumsum(new_run) - 1
     return Context(t, ball, u, length, speed, q, qdot, gain, direction, since,
-                  tuple(rev_times), at_rev, moving, np.asarray(traj.segment, dtype=object), phase,
-                  tuple(kin.names), linear, pivot, run_id.astype(int))
+                   tuple(rev_times), at_rev, moving, np.asarray(traj.segment, dtype=object), phase,
+                   tuple(kin.names), linear, pivot, run_id.astype(int), v, acc, jerk, arc,
+                   integral, arc[first], arc[last_idx][run_no])

@@ -27,7 +27,7 @@ from ..planfiles import PlanFiles
 from ..sim.simulate import Trace
 from .align import Alignment, align, refine
 from .context import Context, build_context
-from .effects import Effect, Samples, library
+from .effects import PRIOR_ORDER, Effect, Samples, library
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +46,7 @@ class Options:
     min_heldout_gain: float = 0.01
     bic_margin: float = 10.0
     mimic_r2: float = 0.8
-    min_effect_noise: float = 0.5
+    min_effect_noise: float = 0.35
     max_effects: int = 6
 
 
@@ -144,7 +144,10 @@ def noise_estimate(r: np.ndarray, tau: np.ndarray) -> float:
     d = np.diff(r)[adj]
     if len(d) < 10:
         return float(np.std(r))
-    return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0))
+    d = d - np.median(d)
+    mad = 1.4826 * float(np.median(np.abs(d)))
+    core = d[np.abs(d) <= 4.0 * max(mad, 1e-9)]  # quantised noise: trim, do not take the MAD
+    return float(np.sqrt(np.mean(core * core) / 2.0)) if len(core) else mad / math.sqrt(2.0)
 
 
 def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None = None,
@@ -246,6 +249,10 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             return n_eff * math.log(rss0 / max(rss0 - t[0], 1e-30)) - t[5] * math.log(n_eff)
 
         trials.sort(key=lambda x: -bic(x))
+        # equal evidence (within the BIC margin): the more common effect first
+        tied = [t for t in trials if bic(trials[0]) - bic(t) < opt.bic_margin]
+        tied.sort(key=lambda t: PRIOR_ORDER.index(t[1].name))
+        trials = tied + [t for t in trials if t not in tied]
         accepted = None
         for rank, (gain, eff, nl, C_tr, labels, p) in enumerate(trials):
             dbic = bic(trials[rank])

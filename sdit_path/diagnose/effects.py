@@ -148,26 +148,26 @@ class ServoLag(Effect):
     def __init__(self):
         self._cache: dict = {}
 
-    def shrink_um(self, ctx: Context, tau_ms: float) -> np.ndarray:
-        """Radial deviation (um) when every axis follows its command through a
-        first-order lag ``tau_ms`` (Kv = 1/tau), on the whole trajectory grid."""
+    def shrink_um(self, ctx: Context, idx: np.ndarray, tau_ms: float) -> np.ndarray:
+        """Radial deviation (um) at trajectory samples ``idx`` when every axis follows
+        its command through a first-order lag ``tau_ms`` (Kv = 1/tau)."""
         key = (id(ctx), round(tau_ms, 9))
         if key not in self._cache:
-            if len(self._cache) > 64:
-                self._cache.clear()
-            self._cache[key] = lagged_radial_um(ctx, tau_ms * 1e-3)
-        return self._cache[key]
+            if len(self._cache) >= 24:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[key] = lagged_radial_um(ctx, tau_ms * 1e-3).astype(np.float32)
+        return self._cache[key][idx].astype(float)
 
     def search(self, ctx, s, r):
-        gains = [_proj_gain(self.shrink_um(ctx, t)[s.idx][:, None], r) for t in self.grid_ms]
+        gains = [_proj_gain(self.shrink_um(ctx, s.idx, t)[:, None], r) for t in self.grid_ms]
         k = int(np.argmax(gains))
         lo, hi = self.grid_ms[max(k - 1, 0)], self.grid_ms[min(k + 1, len(self.grid_ms) - 1)]
         fine = np.linspace(lo, hi, 9)
-        gains = [_proj_gain(self.shrink_um(ctx, t)[s.idx][:, None], r) for t in fine]
+        gains = [_proj_gain(self.shrink_um(ctx, s.idx, t)[:, None], r) for t in fine]
         return {"tau_ms": float(fine[int(np.argmax(gains))])}
 
     def columns(self, ctx, s, nl):
-        return self.shrink_um(ctx, nl["tau_ms"])[s.idx][:, None], ("scale",)
+        return self.shrink_um(ctx, s.idx, nl["tau_ms"])[:, None], ("scale",)
 
     def physical(self, coef):
         return coef[0] > 0
@@ -179,8 +179,8 @@ class ServoLag(Effect):
 
 
 def lagged_radial_um(ctx: Context, tau_s: float) -> np.ndarray:
-    """First-order lag of the ball path (each table-frame coordinate, i.e. each linear
-    axis of a 3-axis machine) by ``tau_s``, as radial deviation in um."""
+    """First-order lag (Tustin) of the ball path in the table frame by ``tau_s``, as
+    radial deviation in um on the whole trajectory grid."""
     from scipy.signal import lfilter
 
     dt = float(np.median(np.diff(ctx.t_s)))
@@ -218,7 +218,15 @@ class Backlash(Effect):
             if not len(ctx.reversal_times[j]):
                 continue
             g = [_proj_gain(self._col(ctx, s, j, b)[:, None], r) for b in self.grid_um]
-            out[f"width_{ctx.axis_names[j]}_um"] = float(self.grid_um[int(np.argmax(g))])
+            b = float(self.grid_um[int(np.argmax(g))])
+            for _ in range(3):  # the column's shape depends on the play: iterate to it
+                c = self._col(ctx, s, j, b)
+                den = float(c @ c)
+                fitted = abs(float(c @ r) / den) if den > 0 else b
+                if not 0.2 <= fitted <= 100.0 or abs(fitted - b) < 0.02 * b:
+                    break
+                b = fitted
+            out[f"width_{ctx.axis_names[j]}_um"] = b
         return out or None
 
     def _col(self, ctx, s, j, width_um):
@@ -402,13 +410,9 @@ class StickSlip(Effect):
     def _cols(self, ctx, s, period_ms):
         cols = []
         for j in _lin(ctx):
-            slow = (np.abs(ctx.qdot[:, j]) < STICK_SLIP_SPEED_MM_PER_S) & ctx.moving
-            enter = np.flatnonzero(np.diff(np.r_[False, slow]).astype(bool) & slow)
-            last = np.full(ctx.n, -1)
-            last[enter] = enter
-            last = np.maximum.accumulate(last)
+            slow, since_all = ctx.slow_state(j, STICK_SLIP_SPEED_MM_PER_S)
             i = s.idx
-            since = ctx.t_s[i] - ctx.t_s[np.maximum(last[i], 0)]
+            since = since_all[i]
             x = since / (period_ms * 1e-3)
             saw = 2.0 * (x - np.floor(x)) - 1.0
             cols.append(ctx.gain[i, j] * saw * slow[i])
@@ -479,29 +483,21 @@ class ContourSmoothing(Effect):
     limits = {"shortcut_um": 40.0}
     grid_mm = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0)
 
-    def __init__(self):
-        self._cache: dict = {}
-
-    def shortcut_um(self, ctx: Context, window_mm: float) -> np.ndarray:
-        """Radial deviation (um) of the path averaged over ``window_mm`` of arc length,
-        on the whole trajectory grid (zero while standing)."""
-        key = (id(ctx), round(window_mm, 9))
-        if key not in self._cache:
-            if len(self._cache) > 64:
-                self._cache.clear()
-            self._cache[key] = smoothed_radial_um(ctx, window_mm)
-        return self._cache[key]
+    def shortcut_um(self, ctx: Context, idx: np.ndarray, window_mm: float) -> np.ndarray:
+        """Radial deviation (um) at samples ``idx`` of the path averaged over
+        ``window_mm`` of arc length within its run (zero while standing)."""
+        return smoothed_radial_um(ctx, idx, window_mm)
 
     def search(self, ctx, s, r):
-        gains = [_proj_gain(self.shortcut_um(ctx, w)[s.idx][:, None], r) for w in self.grid_mm]
+        gains = [_proj_gain(self.shortcut_um(ctx, s.idx, w)[:, None], r) for w in self.grid_mm]
         k = int(np.argmax(gains))
         lo, hi = self.grid_mm[max(k - 1, 0)], self.grid_mm[min(k + 1, len(self.grid_mm) - 1)]
         fine = np.linspace(lo, hi, 9)
-        gains = [_proj_gain(self.shortcut_um(ctx, w)[s.idx][:, None], r) for w in fine]
+        gains = [_proj_gain(self.shortcut_um(ctx, s.idx, w)[:, None], r) for w in fine]
         return {"window_mm": float(fine[int(np.argmax(gains))])}
 
     def columns(self, ctx, s, nl):
-        return self.shortcut_um(ctx, nl["window_mm"])[s.idx][:, None], ("scale",)
+        return self.shortcut_um(ctx, s.idx, nl["window_mm"])[:, None], ("scale",)
 
     def physical(self, coef):
         return coef[0] > 0
@@ -511,27 +507,16 @@ class ContourSmoothing(Effect):
         return {"window_mm": w, "shortcut_um": float(w * w / (24.0 * np.median(ctx.length_mm)) * 1e3)}
 
 
-def smoothed_radial_um(ctx: Context, window_mm: float) -> np.ndarray:
-    out = np.zeros(ctx.n)
-    h = window_mm / 2.0
-    for rid in range(int(ctx.run_id.max()) + 1 if ctx.n else 0):
-        sel = np.flatnonzero(ctx.run_id == rid)
-        if len(sel) < 3:
-            continue
-        p = ctx.ball_mm[sel]
-        ds = np.linalg.norm(np.diff(p, axis=0), axis=1)
-        s = np.r_[0.0, np.cumsum(ds)]
-        if s[-1] <= 0:
-            continue
-        mid = 0.5 * (p[1:] + p[:-1]) * ds[:, None]
-        cum = np.vstack([np.zeros(3), np.cumsum(mid, axis=0)])
-        lo = np.clip(s - h, 0.0, s[-1])
-        hi = np.clip(s + h, 0.0, s[-1])
-        width = np.maximum(hi - lo, 1e-12)
-        avg = np.column_stack([(np.interp(hi, s, cum[:, k]) - np.interp(lo, s, cum[:, k])) / width
-                               for k in range(3)])
-        out[sel] = (np.linalg.norm(avg - ctx.pivot_mm, axis=1) - ctx.length_mm[sel]) * 1e3
-    return out
+def smoothed_radial_um(ctx: Context, idx: np.ndarray, window_mm: float) -> np.ndarray:
+    s = ctx.arc_mm[idx]
+    lo = np.maximum(s - window_mm / 2.0, ctx.run_start_mm[idx])
+    hi = np.minimum(s + window_mm / 2.0, ctx.run_end_mm[idx])
+    width = np.maximum(hi - lo, 1e-12)
+    avg = np.column_stack([(np.interp(hi, ctx.arc_mm, ctx.arc_integral[:, k])
+                            - np.interp(lo, ctx.arc_mm, ctx.arc_integral[:, k])) / width
+                           for k in range(3)])
+    out = (np.linalg.norm(avg - ctx.pivot_mm, axis=1) - ctx.length_mm[idx]) * 1e3
+    return np.where(ctx.moving[idx] & (hi - lo > 1e-9), out, 0.0)
 
 
 def library(machine, travel) -> list[Effect]:
@@ -539,6 +524,12 @@ def library(machine, travel) -> list[Effect]:
             ReversalSpike(), LateralPlay(), CyclicError(), Vibration(), StickSlip(),
             Squareness(machine, travel), ScaleMismatch(machine, travel), ContourSmoothing()]
 
+
+#: how common each effect is on a healthy machining centre, most common first: the
+#: order that decides between effects the data cannot tell apart (equal evidence)
+PRIOR_ORDER = ("setup_offset", "bar_length", "servo_lag", "thermal_drift", "backlash",
+               "reversal_spike", "servo_mismatch", "squareness", "scale_mismatch",
+               "cyclic_error", "vibration", "lateral_play", "stick_slip", "contour_smoothing")
 
 EFFECT_NAMES = ("setup_offset", "bar_length", "thermal_drift", "servo_lag", "servo_mismatch",
                 "backlash", "reversal_spike", "lateral_play", "cyclic_error", "vibration",
