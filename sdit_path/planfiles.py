@@ -9,7 +9,7 @@ from pathlib import Path
 
 from .config import Config, parse_config
 from .errors import ConfigError
-from .timing.trajectory import Samples, read_csv
+from .timing.trajectory import Samples, read_csv_file
 
 
 @dataclass(frozen=True, slots=True)
@@ -31,8 +31,10 @@ class PlanFiles:
             raise ConfigError(str(self.directory), f"{program}: no trajectory was exported "
                                                    f"(timing.export_trajectories = false)")
         path = self.directory / entry["trajectory"]
+        if not path.is_file():
+            raise ConfigError(str(path), "trajectory file missing from the plan directory")
         try:
-            return read_csv(path.read_text(encoding="ascii"), str(path))
+            return read_csv_file(path)
         except FileNotFoundError:
             raise ConfigError(str(path), "trajectory file missing from the plan directory") from None
 

@@ -129,9 +129,18 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     return best[1] + float(t_m[0]), best[2]
 
 
+def _at(t: np.ndarray, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """Rows of ``X`` (on the uniform grid ``t``) linearly interpolated at ``tau``."""
+    dt = (t[-1] - t[0]) / max(len(t) - 1, 1)
+    x = np.clip((tau - t[0]) / dt, 0.0, len(t) - 1.000001)
+    i = x.astype(int)
+    f = (x - i)[:, None] if X.ndim == 2 else x - i
+    return X[i] * (1 - f) + X[np.minimum(i + 1, len(t) - 1)] * f
+
+
 def _fit_rms(X, t, tm, yy, offset_s, k):
     tau = np.clip((tm - offset_s) / (1 + k), t[0], t[-1])
-    Xs = np.column_stack([np.interp(tau, t, X[:, a]) for a in range(X.shape[1])])
+    Xs = _at(t, X, tau)
     beta, *_ = np.linalg.lstsq(Xs, yy, rcond=None)
     r = yy - Xs @ beta
     return float(np.sqrt(np.mean(r * r))), tau, Xs, beta
@@ -155,7 +164,7 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
     rms, tau, Xs, beta = _fit_rms(X, t, tm, yy, offset_s, k)
     for _ in range(iterations):
         f = X @ beta
-        fd = np.interp(tau, t, np.gradient(f, t))
+        fd = _at(t, np.gradient(f, t), tau)
         raw = (tm - offset_s) / (1 + k)
         inside = (raw > t[0]) & (raw < T)
         # d tau / d offset = -1/(1+k); d tau / d k = -tau/(1+k)
@@ -164,7 +173,7 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
         r = yy - Xs @ beta
         try:
             cov = np.linalg.inv(J.T @ J) * float(np.mean(r * r))
-            std = (float(np.sqrt(cov[-2, -2])), float(np.sqrt(cov[-1, -1])))
+            std = (float(np.sqrt(max(cov[-2, -2], 0.0))), float(np.sqrt(max(cov[-1, -1], 0.0))))
         except np.linalg.LinAlgError:
             pass
         d_off = float(np.clip(sol[-2], -max_step_s, max_step_s))

@@ -93,6 +93,19 @@ def _directions(qdot: np.ndarray, eps: float) -> np.ndarray:
     return out
 
 
+def strided(n: int, points_mm: np.ndarray, spacing_mm: float = 0.5, max_stride: int = 20
+            ) -> np.ndarray:
+    """Indices of a sub-grid no coarser than ``spacing_mm`` of path (nor ``max_stride``
+    samples), always with the last sample: where smooth functions of the pose are
+    evaluated and then interpolated."""
+    if n < 3:
+        return np.arange(n)
+    step = float(np.max(np.linalg.norm(np.diff(points_mm, axis=0), axis=1)))
+    stride = int(np.clip(spacing_mm / max(step, 1e-12), 1, max_stride))
+    k = np.arange(0, n, stride)
+    return k if k[-1] == n - 1 else np.r_[k, n - 1]
+
+
 def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> Context:
     """``velocity_eps``: axis speed (mm/s or rad/s) below which an axis counts as
     standing still when its direction is tracked."""
@@ -102,17 +115,22 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     q = axis_values_rad(traj, kin)
     t = np.asarray(traj.t_s, dtype=float)
     pivot = np.asarray(cfg.ballbar.pivot_mm, dtype=float)
-    ball = kin.forward(q)
+    ball = np.asarray(traj.ball_mm, dtype=float)  # = kin.forward(q), as the plan wrote it
     r = ball - pivot
     length = np.linalg.norm(r, axis=1)
     u = r / length[:, None]
     m = q.shape[1]
+    # gains vary smoothly with the pose: evaluate on a coarser grid and interpolate
+    k = strided(len(t), ball)
+    qs, us = q[k], u[k]
+    bs = kin.forward(qs)
     gain = np.zeros((len(t), m))
     for j in range(m):
         h = 1e-6 if kin.axes[j].is_rotary else 1e-3
-        qh = q.copy()
+        qh = qs.copy()
         qh[:, j] += h
-        gain[:, j] = np.einsum("ni,ni->n", kin.forward(qh) - ball, u) / h
+        gs = np.einsum("ni,ni->n", kin.forward(qh) - bs, us) / h
+        gain[:, j] = np.interp(np.arange(len(t)), k, gs)
     qdot = np.gradient(q, t, axis=0) if len(t) > 2 else np.zeros_like(q)
     v = np.gradient(ball, t, axis=0) if len(t) > 2 else np.zeros_like(ball)
     speed = np.linalg.norm(v, axis=1)

@@ -26,7 +26,7 @@ from ..machine.kinematics import Kinematics
 from ..planfiles import PlanFiles
 from ..sim.simulate import Trace
 from .align import Alignment, align, refine
-from .context import Context, build_context
+from .context import Context, build_context, strided
 from .effects import PRIOR_ORDER, Effect, Samples, library
 
 log = logging.getLogger(__name__)
@@ -94,8 +94,10 @@ def expected_reading(plan: PlanFiles, ctx: Context, model: ErrorSet | None) -> n
     except KeyError as exc:
         raise ConfigError(model.name, f"parameter {exc.args[0]} is not in the model for this "
                                       f"machine") from None
-    ball = actual_ball(kin, em, theta, ctx.q)
-    return (np.linalg.norm(ball - ctx.pivot_mm, axis=1) - cfg.ballbar.bar_length_mm) * 1e3
+    k = strided(ctx.n, ctx.ball_mm)  # smooth in the pose: a coarser grid, interpolated
+    ball = actual_ball(kin, em, theta, ctx.q[k])
+    val = (np.linalg.norm(ball - ctx.pivot_mm, axis=1) - cfg.ballbar.bar_length_mm) * 1e3
+    return np.interp(np.arange(ctx.n), k, val)
 
 
 def _units(ctx: Context) -> np.ndarray:
@@ -164,15 +166,22 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     step("alignment")
     al = align(ctx, expected, t_m, y)
     lib = library(plan.config.machine, plan.tested_travel())
-    result = _explain(ctx, lib, expected, t_m, y, al, options, step)
-    # realign with the explained model and explain again when the alignment moved
-    if result.findings:
-        X = _model_columns(ctx, lib, expected, result.findings)
-        al2 = refine(ctx, X, t_m, y, al.offset_s, al.clock_ppm)
-        moved = abs(al2.offset_s - al.offset_s) + abs(al2.clock_ppm - al.clock_ppm) * 1e-6 * ctx.duration_s
-        if moved > 2e-4:
-            step("realigned; explaining again")
-            result = _explain(ctx, lib, expected, t_m, y, al2, options, step)
+    first = _explain(ctx, lib, expected, t_m, y, al, options, step, finalize=False)
+    # realign with the explained model, then explain again with what was found (the
+    # nonlinear parameters searched afresh) and report
+    if first.findings:
+        X = _model_columns(ctx, lib, expected, first.findings)
+        al = refine(ctx, X, t_m, y, al.offset_s, al.clock_ppm)
+        step("realigned with the findings")
+    names = {f.effect for f in first.findings}
+    result = _explain(ctx, [e for e in lib if e.name in names], expected, t_m, y, al, options,
+                      step, mimic_library=lib)
+    earlier = {f.effect: f for f in first.findings}
+    for f in result.findings:  # the competition was the whole library in the first pass
+        if f.effect in earlier:
+            f.runner_up = earlier[f.effect].runner_up
+            f.runner_up_ratio = earlier[f.effect].runner_up_ratio
+            _confidence(f)
     result.program = program
     return result
 
@@ -190,7 +199,8 @@ def _model_columns(ctx, lib, expected, findings) -> np.ndarray:
 
 
 def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
-             y: np.ndarray, al: Alignment, opt: Options, step) -> Diagnosis:
+             y: np.ndarray, al: Alignment, opt: Options, step, finalize: bool = True,
+             mimic_library: list[Effect] | None = None) -> Diagnosis:
     tau_all = al.program_time(t_m)
     T = ctx.t_s[-1]
     ok = np.isfinite(y) & (tau_all >= ctx.t_s[0]) & (tau_all <= T)
@@ -337,6 +347,8 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
     findings = [findings[i] for i in ranked]
     chosen = [chosen[i] for i in ranked]
 
+    if not finalize:
+        return Diagnosis("", al, {}, findings, {}, noise, {}, {})
     # final fit on all fitted + held-out samples: parameters and contributions
     allsel = np.sort(np.r_[tr, ho])
     S_all = Samples(idx[allsel], tau[allsel])
@@ -363,8 +375,8 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
         # mimics: which other effects reproduce this finding's own signal
         sig = contrib[np.isin(allsel, tr)]
         tot = float(sig @ sig)
-        for other in lib:
-            if other is eff or tot <= 0:
+        for other in mimic_library or lib:
+            if other.name == eff.name or tot <= 0:
                 continue
             try:
                 nl2 = other.search(ctx, S_tr, sig)
@@ -380,12 +392,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             if r2 >= opt.mimic_r2:
                 f.mimics.append({"effect": other.name, "r2": round(r2, 4)})
         f.mimics.sort(key=lambda m: -m["r2"])
-        ex_tr = f.rms_before_um ** 2 - f.rms_after_um ** 2
-        ex_ho = f.heldout_rms_before_um ** 2 - f.heldout_rms_after_um ** 2
-        generalises = ex_ho / ex_tr if ex_tr > 0 else 0.0
-        close = bool(f.mimics and f.mimics[0]["r2"] >= 0.95) or f.runner_up_ratio < 1.1
-        f.confidence = ("high" if generalises >= 0.5 and not close else
-                        "medium" if generalises >= 0.25 else "low")
+        _confidence(f)
     gap_rms = rms(gap)
     un_rms = rms(resid)
     unexplained = {"rms_um": un_rms, "noise_um": noise,
@@ -398,6 +405,18 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                       "dropouts": int((~np.isfinite(y)).sum())},
                      {"tau": tau[allsel], "gap": y_all, "fitted": fitted, "residual": resid,
                       "idx": series_idx, "held": held[allsel]})
+
+
+def _confidence(f: Finding) -> None:
+    """high: it holds on held-out segments and nothing else explains it as well;
+    medium: a mimic or a close runner-up, or weaker on held-out data; low: barely
+    generalises."""
+    ex_tr = f.rms_before_um ** 2 - f.rms_after_um ** 2
+    ex_ho = f.heldout_rms_before_um ** 2 - f.heldout_rms_after_um ** 2
+    generalises = ex_ho / ex_tr if ex_tr > 0 else 0.0
+    close = bool(f.mimics and f.mimics[0]["r2"] >= 0.95) or f.runner_up_ratio < 1.1
+    f.confidence = ("high" if generalises >= 0.5 and not close else
+                    "medium" if generalises >= 0.25 else "low")
 
 
 def _windows(tau: np.ndarray, flag: np.ndarray, min_gap_s: float = 0.5, limit: int = 12):

@@ -143,7 +143,7 @@ class ThermalDrift(Effect):
 class ServoLag(Effect):
     name, title = "servo_lag", "equal servo lag of all axes: radius shrink ~ v^2"
     limits = {"tau_ms": 200.0}
-    grid_ms = (5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0, 65.0, 80.0, 100.0)
+    grid_ms = tuple(float(x) for x in np.round(np.geomspace(3.0, 150.0, 25), 3))
 
     def __init__(self):
         self._cache: dict = {}
@@ -159,12 +159,15 @@ class ServoLag(Effect):
         return self._cache[key][idx].astype(float)
 
     def search(self, ctx, s, r):
-        gains = [_proj_gain(self.shrink_um(ctx, s.idx, t)[:, None], r) for t in self.grid_ms]
-        k = int(np.argmax(gains))
-        lo, hi = self.grid_ms[max(k - 1, 0)], self.grid_ms[min(k + 1, len(self.grid_ms) - 1)]
-        fine = np.linspace(lo, hi, 9)
-        gains = [_proj_gain(self.shrink_um(ctx, s.idx, t)[:, None], r) for t in fine]
-        return {"tau_ms": float(fine[int(np.argmax(gains))])}
+        # a fixed grid (cached across steps): every third value, then the neighbours
+        g = self.grid_ms
+        coarse = list(range(0, len(g), 3))
+        gains = {i: _proj_gain(self.shrink_um(ctx, s.idx, g[i])[:, None], r) for i in coarse}
+        best = max(gains, key=gains.get)
+        for i in range(max(best - 2, 0), min(best + 3, len(g))):
+            if i not in gains:
+                gains[i] = _proj_gain(self.shrink_um(ctx, s.idx, g[i])[:, None], r)
+        return {"tau_ms": g[max(gains, key=gains.get)]}
 
     def columns(self, ctx, s, nl):
         return self.shrink_um(ctx, s.idx, nl["tau_ms"])[:, None], ("scale",)

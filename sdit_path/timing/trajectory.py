@@ -330,22 +330,58 @@ def to_csv(samples: Samples, header: dict[str, str]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def read_csv_file(path) -> Samples:
+    """Read a trajectory file from disk (pandas' C parser straight from the file)."""
+    import pandas as pd
+
+    from ..errors import SditError
+
+    try:
+        df = pd.read_csv(path, comment="#", dtype={"segment": str, "phase": str},
+                         keep_default_na=False, engine="c")
+    except (ValueError, pd.errors.ParserError) as exc:
+        raise SditError(f"{path}: not a trajectory file written by sdit-path plan ({exc})") from None
+    return _samples(df, list(df.columns), str(path))
+
+
+def _samples(df, cols: list[str], source: str) -> Samples:
+    from ..errors import SditError
+
+    axis_cols = [c for c in cols if c.startswith("axis_")]
+    names = tuple(c.split("_")[1] for c in axis_cols)
+    units = tuple(c.split("_")[2] for c in axis_cols)
+    need = ["t_s", "ball_x_mm", "ball_y_mm", "ball_z_mm"] + axis_cols + ["path_speed_mm_per_s"]
+    try:
+        num = df[need].to_numpy(dtype=float)
+        seg, ph = df["segment"].to_numpy(dtype=object), df["phase"].to_numpy(dtype=object)
+    except (ValueError, KeyError) as exc:
+        raise SditError(f"{source}: not a trajectory file written by sdit-path plan ({exc})") from None
+    n_num = 4 + len(axis_cols)
+    return Samples(num[:, 0], num[:, 1:4], num[:, 4:n_num], seg, ph, num[:, -1], names, units)
+
+
 def read_csv(text: str, source: str = "<trajectory>") -> Samples:
     """Read a trajectory file written by :func:`to_csv` back into :class:`Samples`."""
     from ..errors import SditError
 
-    lines = [l for l in text.splitlines() if l and not l.startswith("#")]
-    if not lines:
+    import io
+
+    head_end = 0
+    header = None
+    for line in io.StringIO(text):
+        head_end += len(line)
+        if line.strip() and not line.startswith("#"):
+            header = line.strip()
+            break
+    if header is None:
         raise SditError(f"{source}: empty trajectory file")
-    cols = lines[0].split(",")
-    axis_cols = [c for c in cols if c.startswith("axis_")]
-    names = tuple(c.split("_")[1] for c in axis_cols)
-    units = tuple(c.split("_")[2] for c in axis_cols)
-    n_num = 4 + len(axis_cols)
-    body = lines[1:]
-    num = np.loadtxt(body, delimiter=",", usecols=range(n_num), ndmin=2)
-    tail = [l.rsplit(",", 3)[1:] for l in body]
-    return Samples(num[:, 0], num[:, 1:4], num[:, 4:n_num],
-                   np.array([r[0] for r in tail], dtype=object),
-                   np.array([r[1] for r in tail], dtype=object),
-                   np.array([float(r[2]) for r in tail]), names, units)
+    cols = header.split(",")
+    import pandas as pd  # its C parser reads a one-hour trajectory in seconds
+
+    try:
+        df = pd.read_csv(io.StringIO(text[head_end:]), header=None, names=cols, comment="#",
+                         dtype={"segment": str, "phase": str}, keep_default_na=False,
+                         engine="c")
+    except (ValueError, pd.errors.ParserError) as exc:
+        raise SditError(f"{source}: not a trajectory file written by sdit-path plan ({exc})") from None
+    return _samples(df, cols, source)
