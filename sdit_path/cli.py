@@ -320,6 +320,7 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
     from .diagnose.diagnose import diagnose
     from .diagnose.report import pictures, summary_text, to_json
     from .errormodel.errorset import load_error_set
+    from .errors import ConfigError
     from .output import write_file
     from .planfiles import load_plan
     from .sim.traceio import read_trace
@@ -327,6 +328,9 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
     console = Console(stderr=True, quiet=quiet)
     try:
         plan = load_plan(plan_dir)
+        if program not in plan.program_names:
+            raise ConfigError(plan_dir, f"no program {program!r}; programs: "
+                                        f"{', '.join(plan.program_names)}")
         model = load_error_set(model_file) if model_file else None
         trace = read_trace(measured)
         with console.status("diagnosing", spinner="dots") if console.is_terminal and not quiet \

@@ -112,6 +112,8 @@ def _read_fast(p: Path, text: str, lines: list[str], k: int, cols: list[str],
     body = "\n".join(lines[k + 1:])
     if not body.strip() or "#" in body:
         return None
+    if body.count(",") != (len(cols) - 1) * (len(lines) - k - 1):
+        return None  # a short or long line somewhere: let the careful reader name it
     try:
         df = pd.read_csv(io.StringIO(body), header=None, names=cols, usecols=["t_s", unit],
                          dtype=float, engine="c", skip_blank_lines=False,

@@ -1,0 +1,178 @@
+"""Gap diagnosis: alignment, the effect library on seeded hidden effects, honesty on
+clean traces and on effects outside the library, the report, and bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from sdit_path.config import sample_path
+from sdit_path.diagnose.context import build_context
+from sdit_path.diagnose.diagnose import diagnose
+from sdit_path.diagnose.report import to_json
+from sdit_path.errormodel.errorset import load_error_set
+from sdit_path.planfiles import load_plan
+from sdit_path.sim.perturb import Hidden, Recording, draw_effect, measured_csv, perturb
+from sdit_path.sim.traceio import read_trace
+
+PROGRAM = "SDIT_C"
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "sdit_path", *args], capture_output=True,
+                          text=True, timeout=900)
+
+
+@pytest.fixture(scope="module")
+def plan_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("diag")
+    cfg = d / "f1500.toml"
+    cfg.write_text(sample_path("vmc_3axis.toml").read_text().replace(
+        "feed_mm_per_min = 600.0", "feed_mm_per_min = 1500.0"))
+    r = _cli("plan", str(cfg), "--out", str(d / "plan"), "-q")
+    assert r.returncode == 0, r.stderr
+    return d / "plan"
+
+
+@pytest.fixture(scope="module")
+def setup(plan_dir):
+    plan = load_plan(plan_dir)
+    return plan, build_context(plan, PROGRAM), load_error_set("paper_table2")
+
+
+def _run(setup, tmp_path, hidden, seed, **rec):
+    plan, ctx, model = setup
+    recording = Recording(**{"lead_s": 7.3, "tail_s": 2.0, "clock_ppm": 120.0, "noise_um": 0.2,
+                             **rec})
+    trace, truth = perturb(plan, PROGRAM, model, hidden, recording, seed, ctx)
+    path = tmp_path / f"m{seed}.csv"
+    path.write_text(measured_csv(trace))
+    return diagnose(plan, PROGRAM, read_trace(path), model), truth
+
+
+def test_alignment_recovers_offset_and_clock(setup, tmp_path):
+    d, truth = _run(setup, tmp_path, [], 1, lead_s=12.345, clock_ppm=-170.0)
+    assert d.alignment.offset_s == pytest.approx(12.345, abs=0.003)
+    assert d.alignment.clock_ppm == pytest.approx(-170.0, abs=15.0)
+    assert not d.findings, "a clean trace must not get findings"
+    assert d.unexplained["significant"] is False
+    assert d.noise_um == pytest.approx(np.hypot(0.2, 0.1 / np.sqrt(12)), rel=0.15)
+
+
+@pytest.mark.parametrize("hidden,check", [
+    (Hidden("backlash", {"axis": "Y", "play_um": 8.0}),
+     lambda p: p["play_Y_um"] == pytest.approx(8.0, rel=0.1)),
+    (Hidden("setup_offset", {"dx_um": 25.0, "dy_um": -12.0, "dz_um": 6.0}),
+     lambda p: np.allclose([p["dx_um"], p["dy_um"], p["dz_um"]], [25, -12, 6], atol=0.5)),
+    (Hidden("vibration", {"axis": "X", "frequency_hz": 47.0, "amplitude_um": 1.2,
+                          "phase_rad": 0.3}),
+     lambda p: p["frequency_hz"] == pytest.approx(47.0, abs=0.05)
+     and p["amplitude_X_um"] == pytest.approx(1.2, rel=0.1)),
+    (Hidden("servo_mismatch", {"axis": "Y", "extra_lag_ms": 0.5}),
+     lambda p: p["lag_Y_minus_X_ms"] == pytest.approx(0.5, rel=0.1)),
+    (Hidden("cyclic_error", {"axis": "X", "pitch_mm": 12.0, "amplitude_um": 1.0,
+                             "phase_rad": 1.0, "second_harmonic": 0.0}),
+     lambda p: p["pitch_mm"] == pytest.approx(12.0, rel=0.01)
+     and p["amplitude_um"] == pytest.approx(1.0, rel=0.15)),
+])
+def test_a_hidden_effect_is_named_first_and_measured(setup, tmp_path, hidden, check):
+    d, _ = _run(setup, tmp_path, [hidden], 3)
+    assert d.findings and d.findings[0].effect == hidden.name, [f.effect for f in d.findings]
+    f = d.findings[0]
+    assert check(f.parameters), f.parameters
+    # it holds on segments the fit never saw
+    assert f.heldout_rms_after_um < 0.6 * f.heldout_rms_before_um
+    assert d.unexplained["significant"] is False
+
+
+def test_outside_the_library_stays_unexplained(setup, tmp_path):
+    d, _ = _run(setup, tmp_path, [Hidden("bump", {"count": 2, "height_um": 8.0, "width_s": 0.3,
+                                                  "seed": 5})], 4)
+    assert not any(f.confidence == "high" for f in d.findings)
+    assert d.unexplained["significant"] or not d.findings
+    if d.unexplained["significant"]:
+        assert d.unexplained["where"]["time_windows_s"]
+
+
+def test_mimics_are_reported(setup, tmp_path):
+    """Equal servo lag and contour smoothing both shrink the radius while moving."""
+    d, _ = _run(setup, tmp_path, [Hidden("servo_lag", {"kv_per_s": 25.0})], 5)
+    assert d.findings[0].effect in ("servo_lag", "contour_smoothing")
+    f = d.findings[0]
+    other = "contour_smoothing" if f.effect == "servo_lag" else "servo_lag"
+    assert other in [m["effect"] for m in f.mimics]
+    assert f.confidence != "high"
+
+
+def test_cli_perturb_diagnose_json_and_pictures(plan_dir, tmp_path):
+    m, truth, out = tmp_path / "m.csv", tmp_path / "truth.json", tmp_path / "d.json"
+    r = _cli("perturb", "--plan", str(plan_dir), "--program", PROGRAM, "--model", "paper_table2",
+             "--effect", "backlash:axis=X,play_um=6", "--seed", "2", "--out", str(m),
+             "--truth", str(truth))
+    assert r.returncode == 0, r.stderr
+    assert "backlash" not in m.read_text()  # the trace carries no truth
+    assert json.loads(truth.read_text())["effects"][0]["effect"] == "backlash"
+    r = _cli("diagnose", "--plan", str(plan_dir), "--program", PROGRAM, "--measured", str(m),
+             "--model", "paper_table2", "--json", str(out), "--pictures", str(tmp_path / "pics"))
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(out.read_text())
+    assert set(rep["alignment"]) >= {"offset_s", "clock_ppm"}
+    assert set(rep["gap"]) >= {"rms_um", "max_abs_um"}
+    f = rep["findings"][0]
+    assert set(f) >= {"effect", "parameters", "where", "rms_before_um", "rms_after_um",
+                      "heldout_rms_before_um", "heldout_rms_after_um", "confidence"}
+    assert set(f["where"]) >= {"segments", "time_windows_s"}
+    assert f["effect"] == "backlash" and "1. backlash" in r.stdout
+    assert set(rep["unexplained"]) >= {"rms_um", "where"}
+    for name in ("residual_time.png", "residual_hemisphere.png"):
+        assert (tmp_path / "pics" / name).read_bytes()[:4] == b"\x89PNG"
+
+
+def test_same_input_same_report(setup, tmp_path):
+    plan, ctx, model = setup
+    trace, _ = perturb(plan, PROGRAM, model, [Hidden("reversal_spike", {
+        "axis": "X", "height_um": 6.0, "tau_ms": 30.0, "rise_ms": 2.0})], Recording(), 9, ctx)
+    a = to_json(diagnose(plan, PROGRAM, trace, model))
+    b = to_json(diagnose(plan, PROGRAM, trace, model))
+    assert json.dumps(a) == json.dumps(b)
+    assert a["findings"][0]["effect"] == "reversal_spike"
+
+
+def test_bad_measured_traces(plan_dir, tmp_path):
+    short = tmp_path / "short.csv"
+    short.write_text("t_s,delta_l_um\n" + "".join(f"{k / 1000:.3f},0.5\n" for k in range(3000)))
+    r = _cli("diagnose", "--plan", str(plan_dir), "--program", PROGRAM, "--measured", str(short))
+    assert r.returncode != 0 and "shorter than the program" in r.stderr, r.stderr
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t_s,delta_l_um\n0,1\n0.001,1\n0.002\n0.003,1\n")
+    r = _cli("diagnose", "--plan", str(plan_dir), "--program", PROGRAM, "--measured", str(bad))
+    assert r.returncode == 2 and "bad.csv:4:" in r.stderr, r.stderr
+    r = _cli("diagnose", "--plan", str(plan_dir), "--program", "SDIT_Q", "--measured", str(bad))
+    assert r.returncode != 0 and "SDIT_Q" in r.stderr
+
+
+def test_fast_and_careful_trace_readers_agree(tmp_path):
+    rng = np.random.default_rng(0)
+    vals = rng.normal(0, 3, 5000)
+    vals[::97] = np.nan
+    text = "# sample_rate_hz: 1000\nt_s,delta_l_mm\n" + "".join(
+        f"{k / 1000:.3f},{'' if np.isnan(v) else f'{v / 1000:.7f}'}\n" for k, v in enumerate(vals))
+    p = tmp_path / "a.csv"
+    p.write_text(text)
+    fast = read_trace(p)
+    # with a label column the careful line-by-line reader runs: the same numbers
+    lines = text.splitlines()
+    p2 = tmp_path / "b.csv"
+    p2.write_text("\n".join(lines[:1] + [lines[1] + ",segment"] + [l + ",A1-1" for l in lines[2:]])
+                  + "\n")
+    careful = read_trace(p2)
+    assert careful.segment[0] == "A1-1"
+    np.testing.assert_array_equal(fast.t_s, careful.t_s)
+    np.testing.assert_array_equal(np.isnan(fast.delta_l_um), np.isnan(careful.delta_l_um))
+    np.testing.assert_allclose(fast.delta_l_um, careful.delta_l_um, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(fast.delta_l_um, vals, atol=1e-3)  # 7 decimals of mm
+    assert np.isnan(fast.delta_l_um[::97]).all()
