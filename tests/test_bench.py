@@ -29,3 +29,20 @@ def test_identification_benchmark_runs_and_prints_its_ratio():
                        capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr
     assert "samples/s" in r.stdout and "Cramer-Rao bound" in r.stdout
+
+
+def test_diagnosis_benchmark_runs_and_prints_its_ratio():
+    """At F600 (a four-minute trace) so that the test stays short; the hour is F37."""
+    r = subprocess.run([sys.executable, str(BENCH / "bench_diagnose.py"), "--feed", "600"],
+                       capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    assert "ratio trace duration / diagnosis time" in r.stdout
+
+
+def test_blind_check_runs_and_prints_its_scores():
+    r = subprocess.run([sys.executable, str(BENCH / "blind_check.py"), "--cases", "4",
+                        "--jobs", "1"], capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    for key in ("top-1 effect", "false findings, clean traces", "honest outside the library",
+                "held-out shrink"):
+        assert key in r.stdout
