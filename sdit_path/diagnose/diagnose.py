@@ -27,7 +27,7 @@ from ..planfiles import PlanFiles
 from ..sim.simulate import Trace
 from .align import Alignment, align, refine
 from .context import Context, build_context, strided
-from .effects import PRIOR_ORDER, Effect, Samples, library
+from .effects import GEOMETRIC, PRIOR_ORDER, Effect, GeometryBeyond, Samples, library
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +68,7 @@ class Finding:
     confidence: str = "low"
     where: dict = field(default_factory=dict)
     contribution_rms_um: float = 0.0
+    geometry_doubt: bool = False
 
 
 @dataclass
@@ -175,7 +176,8 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
         step("realigned with the findings")
     names = {f.effect for f in first.findings}
     result = _explain(ctx, [e for e in lib if e.name in names], expected, t_m, y, al, options,
-                      step, mimic_library=lib)
+                      step, mimic_library=lib,
+                      geometry=GeometryBeyond(plan.config.machine, plan.tested_travel()))
     earlier = {f.effect: f for f in first.findings}
     for f in result.findings:  # the competition was the whole library in the first pass
         if f.effect in earlier:
@@ -200,7 +202,7 @@ def _model_columns(ctx, lib, expected, findings) -> np.ndarray:
 
 def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
              y: np.ndarray, al: Alignment, opt: Options, step, finalize: bool = True,
-             mimic_library: list[Effect] | None = None) -> Diagnosis:
+             mimic_library: list[Effect] | None = None, geometry=None) -> Diagnosis:
     tau_all = al.program_time(t_m)
     T = ctx.t_s[-1]
     ok = np.isfinite(y) & (tau_all >= ctx.t_s[0]) & (tau_all <= T)
@@ -398,6 +400,31 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
     unexplained = {"rms_um": un_rms, "noise_um": noise,
                    "significant": bool(un_rms > 1.25 * noise and un_rms - noise > 0.05),
                    "where": _where(ctx, series_idx, tau[allsel], resid, noise=noise)}
+    # would smooth geometry outside the library fit the held-out data better than the
+    # geometric findings do?  Then they may only stand in for it: say so.
+    geo_doubt = None
+    if geometry is not None and any(f.effect in GEOMETRIC for f in findings):
+        G_tr, _ = geometry.columns(ctx, S_tr, {})
+        G_ho, _ = geometry.columns(ctx, S_ho, {})
+        A_tr = np.column_stack([cols_tr[j] for j in ranked] + [G_tr]) if G_tr.shape[1] else None
+        if A_tr is not None:
+            A_ho = np.column_stack([cols_ho[j] for j in ranked] + [G_ho])
+            beta = _Fitter.solve(A_tr, y_tr)
+            with_geo = float(np.mean((y_ho - A_ho @ beta) ** 2))
+            base_ho = findings[-1].heldout_rms_after_um ** 2 if findings else float(np.mean(y_ho ** 2))
+            gain = base_ho - with_geo
+            if gain > max(0.1 * base_ho, (opt.min_effect_noise * noise) ** 2):
+                geo_doubt = math.sqrt(gain)
+                for f in findings:
+                    if f.effect in GEOMETRIC:
+                        f.geometry_doubt = True
+                        _confidence(f)
+    unexplained["geometry_beyond_library_um"] = geo_doubt
+    if geo_doubt is not None:
+        unexplained["significant"] = True
+        unexplained["note"] = ("smooth position-locked geometry outside the library (straightness "
+                               "or angular errors) explains held-out data better than the "
+                               "geometric findings: identify it with sdit-path identify")
     gap_info = {"rms_um": gap_rms, "max_abs_um": float(np.max(np.abs(gap))) if len(gap) else 0.0,
                 "where": _where(ctx, idx, tau, gap, noise=noise, detail=True)}
     return Diagnosis("", al, gap_info, findings, unexplained, noise,
@@ -415,7 +442,7 @@ def _confidence(f: Finding) -> None:
     ex_ho = f.heldout_rms_before_um ** 2 - f.heldout_rms_after_um ** 2
     generalises = ex_ho / ex_tr if ex_tr > 0 else 0.0
     close = bool(f.mimics and f.mimics[0]["r2"] >= 0.95) or f.runner_up_ratio < 1.1
-    f.confidence = ("high" if generalises >= 0.5 and not close else
+    f.confidence = ("high" if generalises >= 0.5 and not close and not f.geometry_doubt else
                     "medium" if generalises >= 0.25 else "low")
 
 

@@ -439,12 +439,17 @@ class _ModelColumns(Effect):
 
     wanted: tuple[str, ...] = ()
 
+    order = 1
+
     def __init__(self, machine, travel):
         self._kin = Kinematics(machine)
-        self._model = build_model(machine, travel, ModelOptions(linear_order=1, squareness=True,
-                                                                location=False))
-        self._names = [n for n in self.wanted if n in self._model.names]
-        self._travel = dict((a, (lo, hi)) for a, lo, hi in self._model.travel)
+        self._model = build_model(machine, travel, ModelOptions(linear_order=self.order,
+                                                                squareness=True, location=False))
+        self._names = [n for n in self._wanted() if n in self._model.names]
+        self._travel = {a: (lo, hi) for a, lo, hi in self._model.travel}
+
+    def _wanted(self):
+        return self.wanted
 
     def columns(self, ctx, s, nl):
         if not self._names:
@@ -479,6 +484,25 @@ class ScaleMismatch(_ModelColumns):
             lo, hi = self._travel.get(axis, (0.0, 1.0))
             out[f"{axis}_um_per_m"] = float(c / max((hi - lo) / 2.0, 1e-9) * 1e3)
         return out
+
+
+class GeometryBeyond(_ModelColumns):
+    """Not an effect to name: smooth position-locked geometry the library lacks
+    (straightness and angular errors of the linear axes, Legendre degree 2-3), used to
+    tell whether geometric findings are only standing in for it."""
+
+    name, title = "geometry_beyond_library", "straightness / angular errors (Legendre 2-3)"
+    order = 3
+
+    def _wanted(self):
+        return [p.name for p in self._model.parameters
+                if p.kind == "component" and p.axis not in self._model.rotary
+                and p.basis in ("P2", "P3")]
+
+
+#: findings that a more general geometric error could be standing in for
+GEOMETRIC = ("setup_offset", "bar_length", "squareness", "scale_mismatch", "cyclic_error",
+             "thermal_drift")
 
 
 class ContourSmoothing(Effect):
