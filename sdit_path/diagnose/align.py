@@ -53,7 +53,7 @@ def generic_columns(ctx: Context, expected_um: np.ndarray) -> np.ndarray:
     mov = np.convolve(mov, np.ones(k) / k, mode="same")
     cols = [np.ones(ctx.n), ctx.u[:, 0], ctx.u[:, 1], ctx.u[:, 2], mov,
             -(ctx.speed_mm_per_s ** 2) / (2 * ctx.length_mm) * 1e3, ctx.t_s / 3600.0]
-    cols += [ctx.gain[:, j] * ctx.direction[:, j] for j in ctx.linear]  # lost motion
+    cols += [ctx.gain[:, j] * ctx.direction[:, j] for j in ctx.linear if j in ctx.observable]
     if np.ptp(expected_um) > 1e-3:
         cols.insert(0, expected_um)
     X = np.column_stack(cols)

@@ -25,7 +25,9 @@ class Context:
     axis velocities; ``gain : (n, m)`` bar reading change (mm) per unit axis error (mm
     or rad); ``direction : (n, m)`` +-1 last direction of motion of each axis;
     ``since_reversal_s : (n, m)`` time since that axis last reversed (inf before its
-    first reversal); ``position_at_reversal : (n, m)`` where it was then (NaN before); ``moving : (n,)``; labels ``segment, phase : (n,)``.
+    first reversal); ``position_at_reversal : (n, m)`` where it was then (NaN before);
+    ``observable``: axes whose motion the bar sees at all (an axis always moving across
+    the bar, e.g. Y of a B-C table set-up that keeps the bar in the XZ plane, is not); ``moving : (n,)``; labels ``segment, phase : (n,)``.
     """
 
     t_s: np.ndarray
@@ -54,6 +56,7 @@ class Context:
     arc_integral: np.ndarray
     run_start_mm: np.ndarray
     run_end_mm: np.ndarray
+    observable: tuple[int, ...] = ()
     _slow: dict = field(default_factory=dict)
 
     def slow_state(self, j: int, speed: float) -> tuple[np.ndarray, np.ndarray]:
@@ -170,4 +173,5 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     return Context(t, ball, u, length, speed, q, qdot, gain, direction, since,
                    tuple(rev_times), at_rev, moving, np.asarray(traj.segment, dtype=object), phase,
                    tuple(kin.names), linear, pivot, run_id.astype(int), v, acc, jerk, arc,
-                   integral, arc[first], arc[last_idx][run_no])
+                   integral, arc[first], arc[last_idx][run_no],
+                   tuple(j for j in range(m) if float(np.sqrt(np.mean(gain[:, j] ** 2))) > 1e-6))

@@ -136,8 +136,12 @@ class _Fitter:
     @staticmethod
     def solve(A, y):
         scale = np.sqrt((A * A).sum(0))
-        scale[scale == 0] = 1.0
-        coef, *_ = np.linalg.lstsq(A / scale, y, rcond=None)
+        # a column the bar cannot see (below 1e-8 um per unit everywhere) stays at zero
+        blind = scale < 1e-8 * math.sqrt(max(len(A), 1))
+        scale[blind] = np.inf
+        # truncated at 1e-5 of the largest singular value: a combination of parameters
+        # the data cannot tell apart gets the minimum-norm value, not 1e8
+        coef, *_ = np.linalg.lstsq(A / scale, y, rcond=1e-5)
         return coef / scale
 
 
@@ -276,12 +280,17 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             B1 = np.column_stack([A_ho, C_ho])
             new_tr, new_ho = y_tr - A1 @ beta, y_ho - B1 @ beta
             if not eff.physical(beta[A_tr.shape[1]:]):
+                log.debug("%s: not physical", eff.name)
                 continue
-            if eff.implausible(eff.parameters(beta[A_tr.shape[1]:], labels, nl, ctx)):
+            why = eff.implausible(eff.parameters(beta[A_tr.shape[1]:], labels, nl, ctx))
+            if why:
+                log.debug("%s: implausible (%s)", eff.name, why)
                 continue
             mse_ho = float(np.mean(r_ho ** 2))
             need = max(opt.min_heldout_gain * mse_ho, (opt.min_effect_noise * noise) ** 2)
             if mse_ho - float(np.mean(new_ho ** 2)) < need:
+                log.debug("%s: held-out MSE %.4g -> %.4g, needs a drop of %.3g", eff.name, mse_ho,
+                          float(np.mean(new_ho ** 2)), need)
                 continue
             accepted = (eff, nl, labels, C_tr, C_ho, beta, new_tr, new_ho, dbic, rank)
             break

@@ -101,7 +101,8 @@ def _match(key: str, pattern: str) -> bool:
 
 
 def _lin(ctx: Context):
-    return [j for j in ctx.linear]
+    """Linear axes the bar can see."""
+    return [j for j in ctx.linear if j in ctx.observable]
 
 
 class SetupOffset(Effect):
@@ -198,7 +199,7 @@ class ServoMismatch(Effect):
     limits = {"lag_*": 8.0}
 
     def _axes(self, ctx):
-        moving = [j for j in range(len(ctx.axis_names))
+        moving = [j for j in ctx.observable
                   if np.ptp(ctx.q[:, j]) > (1e-6 if j not in ctx.linear else 1e-3)]
         return moving[1:], (moving[0] if moving else 0)
 

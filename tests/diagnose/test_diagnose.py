@@ -176,3 +176,24 @@ def test_fast_and_careful_trace_readers_agree(tmp_path):
     np.testing.assert_allclose(fast.delta_l_um, careful.delta_l_um, rtol=0, atol=1e-9)
     np.testing.assert_allclose(fast.delta_l_um, vals, atol=1e-3)  # 7 decimals of mm
     assert np.isnan(fast.delta_l_um[::97]).all()
+
+
+def test_five_axis_rotary_lag_mismatch(tmp_path):
+    """On the B-C table sample the bar never sees Y (the set-up keeps it in the XZ
+    plane): effects stay on the axes the bar sees, and a lagging C axis is found."""
+    r = _cli("plan", "bc_table_5axis", "--out", str(tmp_path / "p5"), "-q")
+    assert r.returncode == 0, r.stderr
+    plan = load_plan(tmp_path / "p5")
+    ctx = build_context(plan, "SDIT5_B")
+    assert ctx.axis_names.index("Y") not in ctx.observable
+    model = load_error_set("five_axis_location")
+    hidden = [Hidden("servo_mismatch", {"axis": "C", "extra_lag_ms": 1.0}),
+              Hidden("setup_offset", {"dx_um": 6.0, "dy_um": 30.0, "dz_um": 15.0})]
+    trace, _ = perturb(plan, "SDIT5_B", model, hidden, Recording(lead_s=3.0, clock_ppm=-80.0), 4, ctx)
+    d = diagnose(plan, "SDIT5_B", trace, model)
+    found = {f.effect: f for f in d.findings}
+    assert set(found) == {"servo_mismatch", "setup_offset"}, list(found)
+    assert found["servo_mismatch"].parameters["lag_C_minus_X_ms"] == pytest.approx(1.0, rel=0.05)
+    assert all(abs(v) < 1e3 for f in d.findings for v in f.parameters.values()
+               if isinstance(v, float))
+    assert d.unexplained["significant"] is False
