@@ -206,6 +206,18 @@ def main() -> None:
     off = np.array([abs(r["offset_error_ms"]) for r in results])
     print(f"alignment |offset error|:     median {np.median(off):.2f} ms, 90th percentile "
           f"{np.percentile(off, 90):.2f} ms (includes each machine's following delay)")
+    per = {}
+    for r in results:
+        if r["kind"] == "one":
+            per.setdefault(r["hidden"][0], []).append(r["top1"])
+    print("top-1 per effect (one hidden): " + ", ".join(
+        f"{k} {sum(v)}/{len(v)}" for k, v in sorted(per.items())))
+    kinds = {}
+    for r in results:
+        if r["kind"] == "outside":
+            kinds.setdefault(r["hidden"][0], []).append(r["honest"])
+    print("honest per outside effect:     " + ", ".join(
+        f"{k} {sum(v)}/{len(v)}" for k, v in sorted(kinds.items())))
     misses = [r for r in results if r.get("top1") is False]
     if misses:
         print("top-1 misses: " + "; ".join(f"case {r['case']} {','.join(r['hidden'])} -> "

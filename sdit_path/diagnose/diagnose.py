@@ -189,6 +189,8 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
             f.runner_up_ratio = earlier[f.effect].runner_up_ratio
             _confidence(f)
     result.program = program
+    entry = next((p for p in plan.manifest.get("programs", []) if p["name"] == program), {})
+    result.gap["where"] = {"layer": entry.get("layer", ""), **result.gap["where"]}
     return result
 
 
@@ -503,5 +505,10 @@ def _where(ctx: Context, idx: np.ndarray, tau: np.ndarray, signal: np.ndarray,
     flag[order] = sm >= thr
     out["time_windows_s"] = _windows(tau, flag)
     if detail:
-        out["layer"] = ctx.segment[0][0] if len(ctx.segment) else ""
+        kind = np.where(ph == "dwell", "static nodes (dwell)",
+                        np.where(np.char.find(seg.astype(str), ">") >= 0, "meridian transits",
+                                 "layer segments"))
+        out["by_part_rms_um"] = {k: round(float(np.sqrt(np.mean(signal[kind == k] ** 2))), 4)
+                                 for k in ("layer segments", "meridian transits",
+                                           "static nodes (dwell)") if (kind == k).any()}
     return out

@@ -68,6 +68,9 @@ def summary_text(d: Diagnosis) -> str:
              f"Gap (measured - simulated): RMS {d.gap['rms_um']:.3f} um, max |gap| "
              f"{d.gap['max_abs_um']:.3f} um; sensor noise about {d.noise_um:.3f} um."]
     w = d.gap["where"]
+    if w.get("by_part_rms_um"):
+        lines.append(f"  layer {w.get('layer', '?')}, RMS by part (um): " + ", ".join(
+            f"{k} {v:.3f}" for k, v in w["by_part_rms_um"].items()))
     if w.get("segments"):
         lines.append("  strongest in: " + ", ".join(
             f"{s} ({w['segment_rms_um'][s]:.2f})" for s in w["segments"][:8]))
