@@ -157,7 +157,12 @@ class ServoLag(Effect):
             if len(self._cache) >= 24:
                 self._cache.pop(next(iter(self._cache)))
             self._cache[key] = lagged_radial_um(ctx, tau_ms * 1e-3).astype(np.float32)
-        return self._cache[key][idx].astype(float)
+        # the lag also delays the machine along its path, and that delay cannot be told
+        # from a later start: the alignment has put it into the offset, so program time
+        # here is the commanded time of where the machine is - read the shrink tau later
+        dt = (ctx.t_s[-1] - ctx.t_s[0]) / max(ctx.n - 1, 1)
+        shifted = np.minimum(idx + int(round(tau_ms * 1e-3 / dt)), ctx.n - 1)
+        return self._cache[key][shifted].astype(float)
 
     def search(self, ctx, s, r):
         # a fixed grid (cached across steps): every third value, then the neighbours
