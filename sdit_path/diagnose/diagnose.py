@@ -37,6 +37,7 @@ class Options:
     """``heldout_every``: every n-th stretch of the program is held out;
     ``max_fit_samples``: samples used for fitting (a seeded choice of 0.5 s blocks);
     ``min_heldout_gain``: relative held-out MSE drop a new effect must bring;
+    (the noise threshold below scales with the share of samples the effect acts on)
     ``bic_margin``: extra BIC units an effect must win; ``min_effect_noise``: the
     held-out mean square it explains must exceed (this x noise)^2; ``mimic_r2``: share of a
     finding's signal another effect must reproduce to be reported as its mimic."""
@@ -115,6 +116,17 @@ def _block_choice(candidates: np.ndarray, quota: int, rng, block: int = 500) -> 
     pick = np.sort(rng.choice(nb, max(1, quota // block), replace=False))
     out = (pick[:, None] * block + np.arange(block)[None, :]).ravel()
     return candidates[out[out < len(candidates)]]
+
+
+def _support(C: np.ndarray) -> float:
+    """Share of samples an effect acts on (any column above 1 % of its peak): a local
+    effect (stick-slip near reversals) must explain its own samples, not the whole
+    trace, to pass the noise threshold."""
+    if C.size == 0:
+        return 1.0
+    peak = np.abs(C).max(axis=0)
+    active = (np.abs(C) > 0.01 * np.where(peak > 0, peak, np.inf)).any(axis=1)
+    return max(float(active.mean()), 0.02)
 
 
 def _rho(r: np.ndarray, tau: np.ndarray) -> float:
@@ -289,7 +301,8 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                 log.debug("%s: implausible (%s)", eff.name, why)
                 continue
             mse_ho = float(np.mean(r_ho ** 2))
-            need = max(opt.min_heldout_gain * mse_ho, (opt.min_effect_noise * noise) ** 2)
+            need = max(opt.min_heldout_gain * mse_ho,
+                       (opt.min_effect_noise * noise) ** 2 * _support(C_ho))
             if mse_ho - float(np.mean(new_ho ** 2)) < need:
                 log.debug("%s: held-out MSE %.4g -> %.4g, needs a drop of %.3g", eff.name, mse_ho,
                           float(np.mean(new_ho ** 2)), need)
@@ -336,7 +349,8 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             p = cols_tr[i].shape[1]
             dbic = n_eff * math.log(float(red_tr @ red_tr) / max(rss_full, 1e-30)) - p * math.log(n_eff)
             mse_ho = float(np.mean(red_ho ** 2))
-            need = max(opt.min_heldout_gain * mse_ho, (opt.min_effect_noise * noise) ** 2)
+            need = max(opt.min_heldout_gain * mse_ho,
+                       (opt.min_effect_noise * noise) ** 2 * _support(cols_ho[i]))
             ok = dbic >= opt.bic_margin and mse_ho - float(np.mean(full_ho ** 2)) >= need
             if not ok and dbic < worst_score:
                 worst, worst_score = i, dbic
