@@ -30,7 +30,7 @@ from sdit_path.diagnose.diagnose import diagnose  # noqa: E402
 from sdit_path.diagnose.report import summary_text, to_json  # noqa: E402
 from sdit_path.errormodel.errorset import load_error_set  # noqa: E402
 from sdit_path.planfiles import load_plan  # noqa: E402
-from sdit_path.sim.perturb import Hidden, draw_effect, draw_recording, measured_csv, perturb  # noqa: E402
+from sdit_path.sim.perturb import draw_effect, draw_recording, measured_csv, perturb  # noqa: E402
 from sdit_path.sim.traceio import read_trace  # noqa: E402
 
 PROGRAM = "SDIT_A"

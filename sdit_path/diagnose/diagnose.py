@@ -20,11 +20,9 @@ import numpy as np
 
 from ..errormodel.chain import actual_ball
 from ..errormodel.errorset import ErrorSet
-from ..errormodel.model import build_model, values_vector
-from ..errors import ConfigError
 from ..machine.kinematics import Kinematics
 from ..planfiles import PlanFiles
-from ..sim.simulate import Trace
+from ..sim.simulate import Trace, error_values
 from .align import Alignment, align, refine
 from .context import Context, build_context, strided
 from .effects import GEOMETRIC, PRIOR_ORDER, Effect, GeometryBeyond, Samples, library
@@ -90,12 +88,7 @@ def expected_reading(plan: PlanFiles, ctx: Context, model: ErrorSet | None) -> n
     if model is None:
         return np.zeros(ctx.n)
     kin = Kinematics(cfg.machine)
-    em = build_model(cfg.machine, plan.tested_travel(), model.options)
-    try:
-        theta = values_vector(em, model.as_dict())
-    except KeyError as exc:
-        raise ConfigError(model.name, f"parameter {exc.args[0]} is not in the model for this "
-                                      f"machine") from None
+    em, theta = error_values(plan, model)
     k = strided(ctx.n, ctx.ball_mm)  # smooth in the pose: a coarser grid, interpolated
     ball = actual_ball(kin, em, theta, ctx.q[k])
     val = (np.linalg.norm(ball - ctx.pivot_mm, axis=1) - cfg.ballbar.bar_length_mm) * 1e3
@@ -139,22 +132,21 @@ def _rho(r: np.ndarray, tau: np.ndarray) -> float:
     return float(np.clip((a @ b) / den, 0.0, 0.9999)) if den > 0 else 0.0
 
 
-class _Fitter:
-    """Least squares on the training samples with column scaling."""
+def _solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Least squares with column scaling."""
+    scale = np.sqrt((A * A).sum(0))
+    # a column the bar cannot see (below 1e-8 um per unit everywhere) stays at zero
+    blind = scale < 1e-8 * math.sqrt(max(len(A), 1))
+    scale[blind] = np.inf
+    # truncated at 1e-5 of the largest singular value: a combination of parameters
+    # the data cannot tell apart gets the minimum-norm value, not 1e8
+    coef, *_ = np.linalg.lstsq(A / scale, y, rcond=1e-5)
+    return coef / scale
 
-    def __init__(self, y_tr, y_ho):
-        self.y_tr, self.y_ho = y_tr, y_ho
 
-    @staticmethod
-    def solve(A, y):
-        scale = np.sqrt((A * A).sum(0))
-        # a column the bar cannot see (below 1e-8 um per unit everywhere) stays at zero
-        blind = scale < 1e-8 * math.sqrt(max(len(A), 1))
-        scale[blind] = np.inf
-        # truncated at 1e-5 of the largest singular value: a combination of parameters
-        # the data cannot tell apart gets the minimum-norm value, not 1e8
-        coef, *_ = np.linalg.lstsq(A / scale, y, rcond=1e-5)
-        return coef / scale
+def _heldout_need(opt: "Options", mse_ho: float, noise: float, C_ho: np.ndarray) -> float:
+    """The held-out MSE drop an effect acting through ``C_ho`` must bring."""
+    return max(opt.min_heldout_gain * mse_ho, (opt.min_effect_noise * noise) ** 2 * _support(C_ho))
 
 
 def noise_estimate(r: np.ndarray, tau: np.ndarray) -> float:
@@ -170,14 +162,16 @@ def noise_estimate(r: np.ndarray, tau: np.ndarray) -> float:
 
 
 def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None = None,
-             options: Options = Options(), progress=None) -> Diagnosis:
+             options: Options = Options(), progress=None, ctx: Context | None = None
+             ) -> Diagnosis:
+    """``ctx``: the program's context if the caller has built it already."""
     def step(msg):
         log.info(msg)
         if progress:
             progress(msg)
 
     step("context")
-    ctx = build_context(plan, program)
+    ctx = ctx or build_context(plan, program)
     expected = expected_reading(plan, ctx, model)
     t_m, y = np.asarray(trace.t_s, float), np.asarray(trace.delta_l_um, float)
     step("alignment")
@@ -269,27 +263,27 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             keep = np.sqrt((Cp * Cp).sum(0)) > 1e-9 * max(1.0, float(np.sqrt((C_tr * C_tr).sum(0)).max()))
             if not keep.any():
                 continue
-            coef = _Fitter.solve(Cp[:, keep], r_tr)
+            coef = _solve(Cp[:, keep], r_tr)
             fit = Cp[:, keep] @ coef
             gain = float(r_tr @ r_tr - (r_tr - fit) @ (r_tr - fit))
             trials.append((gain, eff, nl, C_tr, labels, int(keep.sum())))
         if not trials:
             break
-        def bic(t):
-            return n_eff * math.log(rss0 / max(rss0 - t[0], 1e-30)) - t[5] * math.log(n_eff)
-
-        trials.sort(key=lambda x: -bic(x))
+        dbics = {id(t): n_eff * math.log(rss0 / max(rss0 - t[0], 1e-30)) - t[5] * math.log(n_eff)
+                 for t in trials}
+        trials.sort(key=lambda t: -dbics[id(t)])
         # equal evidence (within the BIC margin): the more common effect first
-        tied = [t for t in trials if bic(trials[0]) - bic(t) < opt.bic_margin]
-        tied.sort(key=lambda t: PRIOR_ORDER.index(t[1].name))
-        trials = tied + [t for t in trials if t not in tied]
+        best = dbics[id(trials[0])]
+        tied = sorted((t for t in trials if best - dbics[id(t)] < opt.bic_margin),
+                      key=lambda t: PRIOR_ORDER.index(t[1].name))
+        trials = tied + [t for t in trials if all(t is not u for u in tied)]
         accepted = None
         for rank, (gain, eff, nl, C_tr, labels, p) in enumerate(trials):
-            dbic = bic(trials[rank])
+            dbic = dbics[id(trials[rank])]
             if dbic < opt.bic_margin:
-                break  # sorted by BIC: nothing further can pass
+                continue
             A1 = np.column_stack([A_tr, C_tr])
-            beta = _Fitter.solve(A1, y_tr)
+            beta = _solve(A1, y_tr)
             C_ho, _ = eff.columns(ctx, S_ho, nl)
             B1 = np.column_stack([A_ho, C_ho])
             new_tr, new_ho = y_tr - A1 @ beta, y_ho - B1 @ beta
@@ -301,8 +295,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                 log.debug("%s: implausible (%s)", eff.name, why)
                 continue
             mse_ho = float(np.mean(r_ho ** 2))
-            need = max(opt.min_heldout_gain * mse_ho,
-                       (opt.min_effect_noise * noise) ** 2 * _support(C_ho))
+            need = _heldout_need(opt, mse_ho, noise, C_ho)
             if mse_ho - float(np.mean(new_ho ** 2)) < need:
                 log.debug("%s: held-out MSE %.4g -> %.4g, needs a drop of %.3g", eff.name, mse_ho,
                           float(np.mean(new_ho ** 2)), need)
@@ -334,7 +327,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             return y_tr.copy(), y_ho.copy()
         A = np.column_stack([cols_tr[i] for i in keep])
         B = np.column_stack([cols_ho[i] for i in keep])
-        beta = _Fitter.solve(A, y_tr)
+        beta = _solve(A, y_tr)
         return y_tr - A @ beta, y_ho - B @ beta
 
     keep = list(range(len(chosen)))
@@ -349,8 +342,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             p = cols_tr[i].shape[1]
             dbic = n_eff * math.log(float(red_tr @ red_tr) / max(rss_full, 1e-30)) - p * math.log(n_eff)
             mse_ho = float(np.mean(red_ho ** 2))
-            need = max(opt.min_heldout_gain * mse_ho,
-                       (opt.min_effect_noise * noise) ** 2 * _support(cols_ho[i]))
+            need = _heldout_need(opt, mse_ho, noise, cols_ho[i])
             ok = dbic >= opt.bic_margin and mse_ho - float(np.mean(full_ho ** 2)) >= need
             if not ok and dbic < worst_score:
                 worst, worst_score = i, dbic
@@ -387,7 +379,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
     y_all = gap[allsel]
     if blocks:
         A = np.column_stack(blocks)
-        beta = _Fitter.solve(A, y_all)
+        beta = _solve(A, y_all)
         fitted = A @ beta
     else:
         beta, fitted = np.zeros(0), np.zeros(len(allsel))
@@ -414,7 +406,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             C2, _ = other.columns(ctx, S_tr, nl2)
             if C2.shape[1] == 0:
                 continue
-            c2 = _Fitter.solve(C2, sig)
+            c2 = _solve(C2, sig)
             r2 = 1.0 - float(((sig - C2 @ c2) ** 2).sum()) / tot
             if r2 >= opt.mimic_r2:
                 f.mimics.append({"effect": other.name, "r2": round(r2, 4)})
@@ -434,7 +426,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
         A_tr = np.column_stack([cols_tr[j] for j in ranked] + [G_tr]) if G_tr.shape[1] else None
         if A_tr is not None:
             A_ho = np.column_stack([cols_ho[j] for j in ranked] + [G_ho])
-            beta = _Fitter.solve(A_tr, y_tr)
+            beta = _solve(A_tr, y_tr)
             with_geo = float(np.mean((y_ho - A_ho @ beta) ** 2))
             base_ho = findings[-1].heldout_rms_after_um ** 2 if findings else float(np.mean(y_ho ** 2))
             gain = base_ho - with_geo

@@ -50,6 +50,14 @@ def _proj_gain(cols: np.ndarray, r: np.ndarray) -> float:
     return float(r @ r - (r - fit) @ (r - fit))
 
 
+def _grid_search(grid, score, spacing) -> float:
+    """The best value of a one-dimensional parameter: ``score`` on ``grid``, then on 9
+    points (``np.geomspace`` or ``np.linspace``) between the best one's neighbours."""
+    k = int(np.argmax([score(v) for v in grid]))
+    fine = spacing(grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)], 9)
+    return float(fine[int(np.argmax([score(v) for v in fine]))])
+
+
 def _gain2(s: np.ndarray, c: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Projection gains of ``r (n,)`` on many column pairs ``s, c : (m, n)`` at once."""
     ss, cc, sc = (s * s).sum(1), (c * c).sum(1), (s * c).sum(1)
@@ -275,12 +283,8 @@ class ReversalSpike(Effect):
     def search(self, ctx, s, r):
         if not any(len(ctx.reversal_times[j]) for j in _lin(ctx)):
             return None
-        gains = [_proj_gain(self._cols(ctx, s, t), r) for t in self.grid_ms]
-        k = int(np.argmax(gains))
-        lo, hi = self.grid_ms[max(k - 1, 0)], self.grid_ms[min(k + 1, len(self.grid_ms) - 1)]
-        fine = np.geomspace(lo, hi, 9)
-        gains = [_proj_gain(self._cols(ctx, s, t), r) for t in fine]
-        return {"tau_ms": float(fine[int(np.argmax(gains))])}
+        return {"tau_ms": _grid_search(self.grid_ms, lambda t: _proj_gain(self._cols(ctx, s, t), r),
+                                       np.geomspace)}
 
     def columns(self, ctx, s, nl):
         return self._cols(ctx, s, nl["tau_ms"]), tuple(
@@ -337,10 +341,7 @@ class CyclicError(Effect):
         fine = np.linspace(best[2] - step, best[2] + step, 9)
         ph = 2 * np.pi * x[None, :] * fine[:, None]
         gf = _gain2(g * np.sin(ph), g * np.cos(ph), r)
-        best = (0.0, j, float(1.0 / fine[int(np.argmax(gf))]))
-        if best[1] is None:
-            return None
-        return {"axis": ctx.axis_names[best[1]], "pitch_mm": best[2]}
+        return {"axis": ctx.axis_names[j], "pitch_mm": float(1.0 / fine[int(np.argmax(gf))])}
 
     def columns(self, ctx, s, nl):
         j = ctx.axis_names.index(nl["axis"])
@@ -428,12 +429,8 @@ class StickSlip(Effect):
         return np.column_stack(cols)
 
     def search(self, ctx, s, r):
-        gains = [_proj_gain(self._cols(ctx, s, p), r) for p in self.grid_ms]
-        k = int(np.argmax(gains))
-        lo, hi = self.grid_ms[max(k - 1, 0)], self.grid_ms[min(k + 1, len(self.grid_ms) - 1)]
-        fine = np.geomspace(lo, hi, 9)
-        gains = [_proj_gain(self._cols(ctx, s, p), r) for p in fine]
-        return {"period_ms": float(fine[int(np.argmax(gains))])}
+        return {"period_ms": _grid_search(
+            self.grid_ms, lambda p: _proj_gain(self._cols(ctx, s, p), r), np.geomspace)}
 
     def columns(self, ctx, s, nl):
         return self._cols(ctx, s, nl["period_ms"]), tuple(
@@ -522,12 +519,9 @@ class ContourSmoothing(Effect):
         return smoothed_radial_um(ctx, idx, window_mm)
 
     def search(self, ctx, s, r):
-        gains = [_proj_gain(self.shortcut_um(ctx, s.idx, w)[:, None], r) for w in self.grid_mm]
-        k = int(np.argmax(gains))
-        lo, hi = self.grid_mm[max(k - 1, 0)], self.grid_mm[min(k + 1, len(self.grid_mm) - 1)]
-        fine = np.linspace(lo, hi, 9)
-        gains = [_proj_gain(self.shortcut_um(ctx, s.idx, w)[:, None], r) for w in fine]
-        return {"window_mm": float(fine[int(np.argmax(gains))])}
+        return {"window_mm": _grid_search(
+            self.grid_mm, lambda w: _proj_gain(self.shortcut_um(ctx, s.idx, w)[:, None], r),
+            np.linspace)}
 
     def columns(self, ctx, s, nl):
         return self.shortcut_um(ctx, s.idx, nl["window_mm"])[:, None], ("scale",)

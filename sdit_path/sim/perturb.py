@@ -22,11 +22,10 @@ from ..errors import ConfigError
 from ..machine.kinematics import Kinematics
 from ..planfiles import PlanFiles
 from ..diagnose.context import Context, build_context
+from ..diagnose.effects import EFFECT_NAMES
 from .simulate import Trace
 
-IN_LIBRARY = ("setup_offset", "bar_length", "thermal_drift", "servo_lag", "servo_mismatch",
-              "backlash", "reversal_spike", "lateral_play", "cyclic_error", "vibration",
-              "stick_slip", "squareness", "scale_mismatch", "contour_smoothing")
+IN_LIBRARY = EFFECT_NAMES
 OUTSIDE = ("bump", "step", "straightness", "vibration_burst")
 
 
@@ -221,10 +220,6 @@ def _smooth_axes(ctx: Context, q: np.ndarray, window_mm: float) -> np.ndarray:
     return out
 
 
-def _since_dir(ctx, j):
-    return ctx.since_reversal_s[:, j], ctx.direction[:, j]
-
-
 def perturb(plan: PlanFiles, program: str, model: ErrorSet | None, effects: list[Hidden],
             recording: Recording, seed: int = 0, ctx: Context | None = None
             ) -> tuple[Trace, Truth]:
@@ -301,7 +296,7 @@ def perturb(plan: PlanFiles, program: str, model: ErrorSet | None, effects: list
             q[:, j] = _play(q0[:, j], p["play_um"] * 1e-3, ctx.direction[0, j])
         elif e.name == "reversal_spike":
             j = _axis(ctx, p["axis"])
-            since, d = _since_dir(ctx, j)
+            since, d = ctx.since_reversal_s[:, j], ctx.direction[:, j]
             ok = np.isfinite(since)
             tt = np.where(ok, since, 0.0)
             tau, rise = p["tau_ms"] * 1e-3, p["rise_ms"] * 1e-3

@@ -44,6 +44,17 @@ def axis_values_rad(traj, kin: Kinematics) -> np.ndarray:
     return q
 
 
+def error_values(plan: PlanFiles, errors: ErrorSet):
+    """The error model of ``errors`` over the plan's tested travel and its value vector;
+    a parameter the machine has not is a :class:`ConfigError` naming the set."""
+    model = build_model(plan.config.machine, plan.tested_travel(), errors.options)
+    try:
+        return model, values_vector(model, errors.as_dict())
+    except KeyError as exc:
+        raise ConfigError(errors.name, f"parameter {exc.args[0]} is not in the model for this "
+                                       f"machine; known: {', '.join(model.names)}") from None
+
+
 def simulate_trace(plan: PlanFiles, program: str, errors: ErrorSet,
                    centring_um=(0.0, 0.0, 0.0), bar_offset_um: float = 0.0,
                    noise_um: float = 0.0, quantisation_um: float = 0.1,
@@ -51,12 +62,7 @@ def simulate_trace(plan: PlanFiles, program: str, errors: ErrorSet,
     cfg = plan.config
     kin = Kinematics(cfg.machine)
     traj = plan.trajectory(program)
-    model = build_model(cfg.machine, plan.tested_travel(), errors.options)
-    try:
-        theta = values_vector(model, errors.as_dict())
-    except KeyError as exc:
-        raise ConfigError(errors.name, f"parameter {exc.args[0]} is not in the model for this "
-                                       f"machine; known: {', '.join(model.names)}") from None
+    model, theta = error_values(plan, errors)
     q = axis_values_rad(traj, kin)
     ball = actual_ball(kin, model, theta, q)
     pivot = np.array(cfg.ballbar.pivot_mm) + np.asarray(centring_um, dtype=float) * 1e-3
