@@ -264,9 +264,11 @@ def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead
     """Make a realistic measured trace of PROGRAM with hidden effects."""
     import dataclasses
     import json
+    from pathlib import Path
 
     from .diagnose.context import build_context
     from .errormodel.errorset import load_error_set
+    from .errors import ConfigError, OutputError
     from .output import write_file
     from .planfiles import load_plan
     from .sim.perturb import (Hidden, Recording, draw_case, draw_effect, draw_recording,
@@ -282,12 +284,20 @@ def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead
             hidden = [parse_effect(e) for e in effects]
         # parameters not given are drawn (seeded), the given ones kept
         rng = np.random.default_rng([seed or 0, 5])
-        hidden = [Hidden(h.name, {**draw_effect(h.name, rng, ctx).params, **h.params})
-                  for h in hidden]
+        drawn = [draw_effect(h.name, rng, ctx).params for h in hidden]
+        for h, d in zip(hidden, drawn):
+            unknown = sorted(set(h.params) - set(d))
+            if unknown:
+                raise ConfigError("--effect", f"{h.name}: unknown parameter(s) {', '.join(unknown)}; "
+                                              f"expected some of {', '.join(d)}")
+        hidden = [Hidden(h.name, {**d, **h.params}) for h, d in zip(hidden, drawn)]
         rec = draw_recording(seed) if seed is not None else Recording()
         changes = {k: v for k, v in (("noise_um", noise_um), ("lead_s", lead_s),
                                      ("clock_ppm", clock_ppm)) if v is not None}
         rec = dataclasses.replace(rec, **changes)
+        for target in (out_file, truth_file):
+            if target and Path(target).is_dir():
+                raise OutputError(f"{target}: is a directory")
         trace, truth = perturb(plan, program, model, hidden, rec, seed or 0, ctx)
         write_file(out_file, measured_csv(trace))
         if truth_file:
@@ -316,6 +326,7 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
     import json
     from pathlib import Path
 
+    from .diagnose.align import AlignmentError
     from .diagnose.context import build_context
     from .diagnose.diagnose import diagnose
     from .diagnose.report import pictures, summary_text, to_json
@@ -335,13 +346,18 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
         trace = read_trace(measured)
         with console.status("diagnosing", spinner="dots") if console.is_terminal and not quiet \
                 else _Null() as status:
-            result = diagnose(plan, program, trace, model,
-                              progress=(lambda m: status.update(m)) if status else None)
+            ctx = build_context(plan, program)
+            try:
+                result = diagnose(plan, program, trace, model,
+                                  progress=(lambda m: status.update(m)) if status else None,
+                                  ctx=ctx)
+            except AlignmentError as exc:
+                raise AlignmentError(f"{measured}: {exc}") from None
         report = to_json(result)
         if json_out:
             write_file(json_out, json.dumps(report, indent=2) + "\n")
         if pic_dir:
-            for name, png in pictures(result, build_context(plan, program)).items():
+            for name, png in pictures(result, ctx).items():
                 write_file(Path(pic_dir) / f"{name}.png", png)
     except SditError as exc:
         _fail(exc)

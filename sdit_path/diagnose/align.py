@@ -114,7 +114,7 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
         post_w, post_y = cw[-1] - cw[j + nb], cwy[-1] - cwy[j + nb]
         G += pre_w[:, None, None] * np.outer(x0, x0) + post_w[:, None, None] * np.outer(xT, xT)
         b += pre_y[:, None] * x0 + post_y[:, None] * xT
-        G += np.eye(m) * 1e-9 * np.trace(G, axis1=1, axis2=2)[:, None, None]
+        G += np.eye(m) * (1e-9 * np.trace(G, axis1=1, axis2=2)[:, None, None] + 1e-12)
         beta = np.linalg.solve(G, b[..., None])[..., 0]
         rss = float((wb * yb * yb).sum()) - np.einsum("ja,ja->j", b, beta)
         k = int(np.argmin(rss))
@@ -199,5 +199,9 @@ def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     if t_m[-1] - t_m[0] < ctx.duration_s * (1 - ppm_limit * 1e-6):
         raise AlignmentError(f"the trace lasts {t_m[-1] - t_m[0]:.3f} s, the program "
                              f"{ctx.duration_s:.3f} s: the recording is shorter than the program")
+    valid = int(np.isfinite(y).sum())
+    if valid < max(1000, 0.5 * len(y)):
+        raise AlignmentError(f"only {valid} of {len(y)} samples hold a reading (the rest are "
+                             f"dropouts); at least half are needed")
     off, ppm = coarse(ctx, X, t_m, y, ppm_limit)
     return refine(ctx, X, t_m, y, off, ppm, ppm_limit)

@@ -138,20 +138,25 @@ def pictures(d: Diagnosis, ctx: Context) -> dict[str, bytes]:
     fig.suptitle(f"{d.program}: gap RMS {d.gap['rms_um']:.3f} um -> unexplained "
                  f"{d.unexplained['rms_um']:.3f} um (grey bands: dwells)")
     out["residual_time"] = _png(fig, plt)
-    fig = plt.figure(figsize=(12, 5.5))
+    fig = plt.figure(figsize=(13, 5.5))
     p = ctx.ball_mm[s["idx"]] - ctx.pivot_mm
     lim = float(np.percentile(np.abs(s["residual"]), 99)) or 1.0
     for k, (vals, title) in enumerate(((s["gap"], "gap"), (s["residual"], "unexplained"))):
         ax = fig.add_subplot(1, 2, k + 1, projection="3d")
         sub = slice(None, None, max(1, len(p) // 20000))
         vl = float(np.percentile(np.abs(vals), 99)) or lim
+        radius = float(np.median(ctx.length_mm))
+        az, el = np.meshgrid(np.linspace(0, 2 * np.pi, 37), np.linspace(0, np.pi / 2, 10))
+        ax.plot_wireframe(radius * np.cos(el) * np.cos(az), radius * np.cos(el) * np.sin(az),
+                          radius * np.sin(el), color="0.85", lw=0.4)
         sc = ax.scatter(p[sub, 0], p[sub, 1], p[sub, 2], c=vals[sub], s=1.5, cmap="coolwarm",
                         vmin=-vl, vmax=vl)
         ax.set_title(f"{title} over the hemisphere (um)")
-        ax.set_xlabel("x mm")
+        ax.set_xlabel("x mm (from the pivot)")
         ax.set_ylabel("y mm")
         ax.set_zlabel("z mm")
-        fig.colorbar(sc, ax=ax, shrink=0.6)
+        ax.set_box_aspect((1, 1, 0.5))
+        fig.colorbar(sc, ax=ax, shrink=0.6, pad=0.16)
     out["residual_hemisphere"] = _png(fig, plt)
     return out
 

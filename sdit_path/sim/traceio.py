@@ -89,6 +89,8 @@ def read_trace(path: str | Path) -> Trace:
                 lv = float(cell) * factor
             except ValueError:
                 raise TraceError(f"{p}:{j}: {unit} {cell!r} is not a number") from None
+            if math.isinf(lv):
+                raise TraceError(f"{p}:{j}: {unit} {cell!r} is not finite (a dropout is empty or nan)")
         t[n], dl[n] = tv, lv
         seg[n] = parts[iseg].strip() if iseg is not None else ""
         ph[n] = parts[iph].strip() if iph is not None else ""
@@ -124,7 +126,7 @@ def _read_fast(p: Path, text: str, lines: list[str], k: int, cols: list[str],
     dl = df[unit].to_numpy(dtype=float) * (1.0 if unit == "delta_l_um" else 1000.0)
     if len(t) != len(lines) - k - 1 or not np.isfinite(t).all() or (np.diff(t) <= 0).any():
         return None
-    if (np.abs(dl[np.isfinite(dl)]) == np.inf).any():
+    if np.isinf(dl).any():
         return None
     n = len(t)
     empty = np.full(n, "", dtype=object)

@@ -197,3 +197,20 @@ def test_five_axis_rotary_lag_mismatch(tmp_path):
     assert all(abs(v) < 1e3 for f in d.findings for v in f.parameters.values()
                if isinstance(v, float))
     assert d.unexplained["significant"] is False
+
+
+def test_more_bad_input(plan_dir, tmp_path):
+    """An all-dropout recording, an infinite reading, a misspelt effect parameter."""
+    empty = tmp_path / "empty.csv"
+    empty.write_text("t_s,delta_l_um\n" + "".join(f"{k / 1000:.3f},\n" for k in range(130000)))
+    r = _cli("diagnose", "--plan", str(plan_dir), "--program", PROGRAM, "--measured", str(empty))
+    assert r.returncode == 3 and "empty.csv: only 0 of 130000 samples hold a reading" in r.stderr, r.stderr
+    inf = tmp_path / "inf.csv"
+    inf.write_text("t_s,delta_l_um\n0,1\n0.001,inf\n")
+    r = _cli("diagnose", "--plan", str(plan_dir), "--program", PROGRAM, "--measured", str(inf))
+    assert r.returncode == 2 and "inf.csv:3: delta_l_um 'inf' is not finite" in r.stderr
+    out = tmp_path / "never.csv"
+    r = _cli("perturb", "--plan", str(plan_dir), "--program", PROGRAM, "--effect",
+             "backlash:axis=Y,plya_um=6", "--out", str(out))
+    assert r.returncode == 2 and "unknown parameter(s) plya_um" in r.stderr
+    assert not out.exists()
