@@ -57,6 +57,14 @@ class Gram:
     layers: dict = field(default_factory=dict)
 
 
+#: Eigenvalues of the reduced normal matrix below this share of the largest count as
+#: zero: eliminating the set-up nuisances (Schur complement) cancels terms of the size
+#: of the largest, which leaves rounding noise of ~1e-12 of it in directions the
+#: geometry cannot see at all (seen: +1.5e-12 and -1.8e-12 on the default plan), so the
+#: cut sits well above that noise; a direction at 1e-9 (3e-5 of the best-seen
+#: sensitivity, after prior scaling) could not be determined anyway.
+STRUCTURAL = 1e-9
+
 def _nuisance_columns(u: np.ndarray) -> np.ndarray:
     # centring: the pivot ball sits at pivot + d, the bar reads -u.d; bar length: +1
     return np.column_stack([-u, np.ones(len(u))])
@@ -189,7 +197,7 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
     order = np.argsort(lam)[::-1]
     lam, V = lam[order], V[:, order]
     lam_max = max(float(lam[0]), 1e-300)
-    structural = lam > lam_max * 1e-12
+    structural = lam > lam_max * STRUCTURAL
     rank = int(structural.sum())
     n_nuis = 4 * len(experiments)
     proj = V.T @ r
@@ -313,7 +321,7 @@ def _suggest(name: str, model: ErrorModel, experiments, grams: list[Gram], sigma
         g = _design_gram(plan, program, model, kin2, q, pivot, step=10)
         S, _, _, _ = _schur(grams + [g])
         lam, V = np.linalg.eigh(S)
-        keep = lam > max(lam.max(), 1e-300) * 1e-12
+        keep = lam > max(lam.max(), 1e-300) * STRUCTURAL
         std = np.where(keep, sigma / np.sqrt(np.maximum(lam, 1e-300)), np.inf)
         det = keep & (std < DETERMINED)
         Vd = V[:, det]

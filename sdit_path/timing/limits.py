@@ -18,12 +18,14 @@ for every axis, at any |v| <= v_max, |a| <= a_max, |j| <= j_max.  Tight curvatur
 a fast-turning rotary axis) eats into the acceleration and jerk budgets as v_max
 grows.  Runs are cut into short windows, each with a :class:`Budget` that gives the
 usable path acceleration and jerk as a function of the speed it runs at; the speed
-changes between windows are scheduled by :func:`~sdit_path.timing.profile.plan_chain`.
+changes, which may span several windows, are scheduled by
+:func:`~sdit_path.timing.profile.plan_chain`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -57,22 +59,38 @@ class Budget:
     v_cap: float
     binding: str
     jerk_share: float = 0.5
+    _rows: tuple = field(init=False, repr=False, compare=False, default=())
+
+    def __post_init__(self) -> None:
+        # per axis (m1, m2, m3, a_limit, j_limit) as floats: ``at`` is called hundreds
+        # of thousands of times per layer on 3-6 axes, where numpy's per-call cost rules
+        rows = tuple(zip(*(np.asarray(x, dtype=float).tolist() for x in
+                           (self.m1, self.m2, self.m3, self.a_limit, self.j_limit))))
+        object.__setattr__(self, "_rows", rows)
 
     def at(self, v: float) -> tuple[float, float]:
         """Path acceleration and jerk limits usable at path speeds up to ``v``."""
         v = min(max(v, 0.0), self.v_cap)
-        a_acc = float(np.min((self.a_limit - self.m2 * v * v) / self.m1))
-        rest = self.j_limit - self.m3 * v ** 3
-        with np.errstate(divide="ignore", invalid="ignore"):
-            a_jerk = float(np.min(np.where(self.m2 * v > 1e-12,
-                                           self.jerk_share * rest / (3.0 * self.m2 * v), np.inf)))
-        a = min(a_acc, a_jerk)
-        j = float(np.min((rest - 3.0 * self.m2 * v * a) / self.m1))
+        a = math.inf
+        for m1, m2, m3, a_lim, j_lim in self._rows:
+            a = min(a, (a_lim - m2 * v * v) / m1)
+            if m2 * v > 1e-12:
+                a = min(a, self.jerk_share * (j_lim - m3 * v ** 3) / (3.0 * m2 * v))
+        j = min((j_lim - m3 * v ** 3 - 3.0 * m2 * v * a) / m1
+                for m1, m2, m3, _, j_lim in self._rows)
         return a, j
 
     def limits(self, v: float) -> PathLimits:
         a, j = self.at(v)
         return PathLimits(float(v), a, j, self.binding)
+
+    def weaker(self, other: Budget) -> Budget:
+        """A budget that holds on both stretches (largest derivatives, lowest cap)."""
+        return Budget(np.maximum(self.m1, other.m1), np.maximum(self.m2, other.m2),
+                      np.maximum(self.m3, other.m3), self.a_limit, self.j_limit,
+                      min(self.v_cap, other.v_cap),
+                      self.binding if self.v_cap <= other.v_cap else other.binding,
+                      self.jerk_share)
 
 
 def budget(d1: np.ndarray, d2: np.ndarray, d3: np.ndarray, v_limit: np.ndarray,

@@ -184,37 +184,114 @@ class ChainProfile:
         return s, v, a, j, phase
 
 
-def _boundary_speeds(windows: list[tuple[float, object]], slack: float) -> np.ndarray:
-    """Backward and forward reachability passes over the windows' budgets."""
+def _spans(windows: list[tuple[float, object]], reach: int) -> dict[tuple[int, int], object]:
+    """The budget of every stretch of up to ``reach`` consecutive windows, keyed by
+    (first boundary, last boundary): the weakest of its windows."""
+    spans = {}
+    for k in range(len(windows)):
+        bud = windows[k][1]
+        spans[(k, k + 1)] = bud
+        for m in range(k + 2, min(len(windows), k + reach) + 1):
+            bud = bud.weaker(windows[m - 1][1])
+            spans[(k, m)] = bud
+    return spans
+
+
+def _boundary_speeds(windows: list[tuple[float, object]], spans: dict, cum: np.ndarray,
+                     reach: int, slack: float) -> np.ndarray:
+    """Backward and forward reachability passes over the window boundaries.
+
+    A speed change may span up to ``reach`` windows under the weakest of their
+    budgets, so one change is not cut into steps that each start and end at zero
+    acceleration.  A stretch is only used where its speed cap admits the speed it
+    starts from."""
     n = len(windows)
     caps = [min(windows[k - 1][1].v_cap, windows[k][1].v_cap) for k in range(1, n)]
     vb = np.array([0.0] + caps + [0.0])
     for k in range(n - 1, -1, -1):  # backward: able to slow down in time
-        length, bud = windows[k]
-        vb[k] = min(vb[k], _reachable(vb[k + 1], length, bud, vb[k], slack))
-    for k in range(n):  # forward: able to speed up in time
-        length, bud = windows[k]
-        vb[k + 1] = min(vb[k + 1], _reachable(vb[k], length, bud, vb[k + 1], slack))
+        best = 0.0
+        for m in range(k + 1, min(n, k + reach) + 1):
+            bud = spans[(k, m)]
+            if bud.v_cap >= vb[m] * (1.0 - 1e-12):
+                best = max(best, _reachable(vb[m], cum[m] - cum[k], bud,
+                                            min(vb[k], bud.v_cap), slack))
+        vb[k] = min(vb[k], best)
+    for m in range(1, n + 1):  # forward: able to speed up in time
+        best = 0.0
+        for k in range(max(0, m - reach), m):
+            bud = spans[(k, m)]
+            if bud.v_cap >= vb[k] * (1.0 - 1e-12):
+                best = max(best, _reachable(vb[k], cum[m] - cum[k], bud,
+                                            min(vb[m], bud.v_cap), slack))
+        vb[m] = min(vb[m], best)
     return vb
 
 
-def plan_chain(windows: list[tuple[float, object]], label: str,
-               slack: float = 0.98) -> ChainProfile:
+def _fastest_split(windows: list[tuple[float, object]], reach: int, label: str,
+                   slack: float) -> list[tuple[int, Profile]] | None:
+    """Boundary speeds, then the split of the run into stretches of up to ``reach``
+    windows (one ruckig profile each, rest-to-rest in acceleration at the stretch
+    ends) with the least total time, by dynamic programming over the boundaries.
+    None if no split fits the boundary speeds."""
+    n = len(windows)
+    cum = np.concatenate([[0.0], np.cumsum([w[0] for w in windows])])
+    spans = _spans(windows, reach)
+    vb = _boundary_speeds(windows, spans, cum, reach, slack)
+    cost = np.full(n + 1, np.inf)
+    cost[0] = 0.0
+    choice: list[tuple[int, Profile] | None] = [None] * (n + 1)
+    for m in range(1, n + 1):
+        for k in range(max(0, m - reach), m):
+            if not np.isfinite(cost[k]):
+                continue
+            bud, length = spans[(k, m)], cum[m] - cum[k]
+            low = max(vb[k], vb[m])
+            if low > bud.v_cap * (1.0 + 1e-9):
+                continue
+            a, j = bud.at(low)
+            if not (a > 0 and j > 0) or (change_distance(vb[k], vb[m], a * slack, j * slack)
+                                         > length * (1.0 + 1e-9)):
+                continue
+            top = _peak(vb[k], vb[m], length, bud, slack)
+            try:
+                prof = plan_state(length, vb[k], vb[m], bud.limits(top), label)
+            except PlanError:
+                continue
+            if cost[k] + prof.duration_s < cost[m]:
+                cost[m] = cost[k] + prof.duration_s
+                choice[m] = (k, prof)
+    if not np.isfinite(cost[n]):
+        return None
+    split, m = [], n
+    while m > 0:
+        k, prof = choice[m]
+        split.append((k, prof))
+        m = k
+    return split[::-1]
+
+
+def plan_chain(windows: list[tuple[float, object]], label: str, slack: float = 0.98,
+               reach: int = 8) -> ChainProfile:
     """Rest-to-rest over consecutive windows ``(length, budget)``.
 
-    Boundary speeds come from backward and forward reachability passes, each window's
-    acceleration and jerk taken at the speed it runs; ruckig then plans window by
-    window with the budget at the highest speed each reaches (zero acceleration at the
-    window boundaries, which costs a little where a speed change spans several)."""
-    vb = _boundary_speeds(windows, slack)
-    parts, s0, t0 = [], [], []
-    s = t = 0.0
-    for k, (length, bud) in enumerate(windows):
-        top = _peak(vb[k], vb[k + 1], length, bud, slack)
-        prof = plan_state(length, vb[k], vb[k + 1], bud.limits(top), label)
-        parts.append(prof)
-        s0.append(s)
-        t0.append(t)
-        s += length
-        t += prof.duration_s
-    return ChainProfile(tuple(parts), frozen(s0), frozen(t0))
+    Boundary speeds come from backward and forward reachability passes in which a
+    speed change may span up to ``reach`` windows; the run is then split into
+    stretches of up to ``reach`` windows, each planned by ruckig with the weakest
+    budget of its windows at the highest speed it reaches, and the split with the
+    least total time is kept.  Each window still gets acceleration and jerk at the
+    speed it runs, and a ramp is no longer cut into steps at every window boundary.
+    Should no split fit (rounding at a boundary), the run is planned window by window,
+    which always fits."""
+    cum = np.concatenate([[0.0], np.cumsum([w[0] for w in windows])])
+    split = _fastest_split(windows, reach, label, slack) if reach > 1 else None
+    if split is None:
+        spans = _spans(windows, 1)
+        vb = _boundary_speeds(windows, spans, cum, 1, slack)
+        split = []
+        for k, (length, bud) in enumerate(windows):
+            top = _peak(vb[k], vb[k + 1], length, bud, slack)
+            split.append((k, plan_state(length, vb[k], vb[k + 1], bud.limits(top), label)))
+    parts = tuple(prof for _, prof in split)
+    s0 = np.array([cum[k] for k, _ in split])
+    t0 = np.concatenate([[0.0], np.cumsum([p.duration_s for p in parts])[:-1]])
+    return ChainProfile(parts, frozen(s0), frozen(t0))

@@ -77,13 +77,6 @@ def _same(a: Budget, b: Budget, tol: float = 0.005) -> bool:
                     for x, y in ((a.m1, b.m1), (a.m2, b.m2), (a.m3, b.m3))))
 
 
-def _weaker(a: Budget, b: Budget) -> Budget:
-    """A budget that satisfies both windows."""
-    return Budget(np.maximum(a.m1, b.m1), np.maximum(a.m2, b.m2), np.maximum(a.m3, b.m3),
-                  a.a_limit, a.j_limit, min(a.v_cap, b.v_cap),
-                  a.binding if a.v_cap <= b.v_cap else b.binding)
-
-
 @dataclass(frozen=True, slots=True)
 class TimedRun:
     geometry: RunGeometry
@@ -173,7 +166,7 @@ class Timer:
             length = s[b] - s[a]
             if windows and _same(windows[-1][1], bud):
                 prev_len, prev = windows[-1]
-                windows[-1] = (prev_len + length, _weaker(prev, bud))
+                windows[-1] = (prev_len + length, prev.weaker(bud))
             else:
                 windows.append((length, bud))
         return windows, carry_out
