@@ -22,7 +22,7 @@ crosses the middle faster than at the feed.  LB per run is the larger of that an
 toppra's.  It is loose where curvature couples acceleration and jerk in the middle of
 a run (tight wave crests), so ruckig/LB overstates what a better planner could gain.
 
-    python bench/bench_timing.py [CONFIG] [--feeds 200,600,2000,5000]
+    python bench/bench_timing.py [CONFIG] [--feeds 200,600,2000,5000] [--layers D,E]
 """
 
 from __future__ import annotations
@@ -37,13 +37,12 @@ import numpy as np
 import toppra as ta
 import toppra.algorithm as algo
 import toppra.constraint as constraint
-
 from ruckig import ControlInterface, InputParameter, Ruckig, Trajectory
 
 from sdit_path.config import load_config
 from sdit_path.geometry.hemisphere import partition
 from sdit_path.geometry.paths import PathBuilder
-from sdit_path.timing.trajectory import RunGeometry, Timer, TimedRun
+from sdit_path.timing.trajectory import RunGeometry, TimedRun, Timer
 
 logging.getLogger("toppra").setLevel(logging.ERROR)
 TARGETS = {200: 1.05, 600: 1.05, 2000: 1.05, 5000: 1.10}
@@ -120,6 +119,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("config", nargs="?")
     ap.add_argument("--feeds", default="200,600,2000,5000")
+    ap.add_argument("--layers", default="", help="only these layers, e.g. D,E (default: all)")
     args = ap.parse_args()
     base = load_config(args.config)
     feeds = [float(f) for f in args.feeds.split(",")]
@@ -133,6 +133,8 @@ def main() -> None:
         builder = PathBuilder(cfg, hemi)
         worst = 0.0
         for layer in hemi.layers:
+            if args.layers and layer.name not in args.layers.split(","):
+                continue
             path = builder.layer_path(layer)
             t0 = time.perf_counter()
             timed = timer.time_layer(path)

@@ -17,6 +17,14 @@ def test_plan_benchmark_runs_and_prints_its_ratio():
     assert "ratio BSPLINE / G1" in r.stdout and "max radial deviation sinumerik840d" in r.stdout
 
 
+def test_timing_benchmark_runs_and_prints_its_ratios():
+    r = subprocess.run([sys.executable, str(BENCH / "bench_timing.py"), "--feeds", "5000",
+                        "--layers", "E"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "layer E: ruckig" in r.stdout and "ruckig/LB" in r.stdout
+    assert "F5000: worst layer ratio" in r.stdout
+
+
 def test_interference_benchmark_runs_and_prints_its_ratio():
     r = subprocess.run([sys.executable, str(BENCH / "bench_interference.py")],
                        capture_output=True, text=True, timeout=600)

@@ -127,3 +127,28 @@ def test_cycle_times_in_the_manifest(default_plan):
     for p in m["programs"]:
         assert p["cycle_time_s"] > p["motion_time_s"] > 0
         assert p["trajectory"] == f"trajectories/{p['name']}.csv"
+
+
+def test_a_ramp_to_the_feed_is_one_profile_not_a_staircase():
+    """On a low-curvature transit a speed-up from rest to F5000 spans several 2 mm
+    windows: the path acceleration must not fall back to zero at window boundaries
+    before the feed is reached (it did when every window started and ended at rest in
+    acceleration: 0 to 83 mm/s took ~9 mm instead of ~3.4 mm)."""
+    text = sample_path("vmc_3axis.toml").read_text()
+    cfg = parse_config(edit(text, "feed_mm_per_min", "5000.0"), "f5000.toml")
+    hemi = partition(cfg)
+    timer = Timer(cfg)
+    timed = timer.time_layer(PathBuilder(cfg, hemi).layer_path(hemi.layers[-1]))
+    transits = [i for i in timed.items
+                if hasattr(i, "geometry") and ">" in i.geometry.run.pieces[0].id]
+    assert transits
+    feed = 5000.0 / 60.0
+    for run in transits:
+        t = np.linspace(0.0, run.profile.duration_s, 200001)
+        s, v, a, _, _ = run.profile.evaluate(t)
+        top = int(np.argmax(v >= 0.999 * feed))
+        assert top > 0, "never reaches the feed"
+        ramp = a[: top + 1]
+        start = int(np.argmax(ramp > 0.05 * ramp.max()))  # past the first jerk phase
+        assert ramp[start:].min() > 0.01 * ramp.max(), run.geometry.run.pieces[0].id
+        assert s[top] < 5.0, (run.geometry.run.pieces[0].id, s[top])
