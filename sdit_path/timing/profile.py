@@ -53,30 +53,7 @@ class Profile:
 
 def plan_profile(length_mm: float, limits: PathLimits, label: str = "run") -> Profile:
     """Time-optimal jerk-limited rest-to-rest motion over ``length_mm``."""
-    otg = Ruckig(1)
-    inp = InputParameter(1)
-    inp.current_position = [0.0]
-    inp.current_velocity = [0.0]
-    inp.current_acceleration = [0.0]
-    inp.target_position = [float(length_mm)]
-    inp.target_velocity = [0.0]
-    inp.target_acceleration = [0.0]
-    inp.max_velocity = [limits.v_max]
-    inp.max_acceleration = [limits.a_max]
-    inp.max_jerk = [limits.j_max]
-    inp.min_velocity = [0.0]  # never run backwards to reach the target
-    traj = Trajectory(1)
-    try:
-        result = otg.calculate(inp, traj)
-    except (RuntimeError, RuckigError) as exc:  # ruckig raises on invalid input
-        raise PlanError(f"{label}: ruckig could not time the run: {exc}") from None
-    if result not in (Result.Working, Result.Finished):
-        raise PlanError(f"{label}: ruckig could not time the run ({result})")
-    prof = traj.profiles[0][0]
-    durations = np.array(prof.t, dtype=float)
-    t0 = np.concatenate([[0.0], np.cumsum(durations)])
-    return Profile(float(length_mm), limits, frozen(t0), frozen(prof.p[:7]), frozen(prof.v[:7]),
-                   frozen(prof.a[:7]), frozen(prof.j[:7]))
+    return plan_state(length_mm, 0.0, 0.0, limits, label)
 
 
 def change_distance(v1: float, v2: float, a: float, j: float) -> float:
@@ -227,14 +204,13 @@ def _boundary_speeds(windows: list[tuple[float, object]], spans: dict, cum: np.n
     return vb
 
 
-def _fastest_split(windows: list[tuple[float, object]], reach: int, label: str,
-                   slack: float) -> list[tuple[int, Profile]] | None:
+def _fastest_split(windows: list[tuple[float, object]], cum: np.ndarray, reach: int,
+                   label: str, slack: float) -> list[tuple[int, Profile]] | None:
     """Boundary speeds, then the split of the run into stretches of up to ``reach``
     windows (one ruckig profile each, rest-to-rest in acceleration at the stretch
     ends) with the least total time, by dynamic programming over the boundaries.
     None if no split fits the boundary speeds."""
     n = len(windows)
-    cum = np.concatenate([[0.0], np.cumsum([w[0] for w in windows])])
     spans = _spans(windows, reach)
     vb = _boundary_speeds(windows, spans, cum, reach, slack)
     cost = np.full(n + 1, np.inf)
@@ -283,7 +259,7 @@ def plan_chain(windows: list[tuple[float, object]], label: str, slack: float = 0
     Should no split fit (rounding at a boundary), the run is planned window by window,
     which always fits."""
     cum = np.concatenate([[0.0], np.cumsum([w[0] for w in windows])])
-    split = _fastest_split(windows, reach, label, slack) if reach > 1 else None
+    split = _fastest_split(windows, cum, reach, label, slack) if reach > 1 else None
     if split is None:
         spans = _spans(windows, 1)
         vb = _boundary_speeds(windows, spans, cum, 1, slack)
