@@ -25,6 +25,13 @@ def test_timing_benchmark_runs_and_prints_its_ratios():
     assert "F5000: worst layer ratio" in r.stdout
 
 
+def test_jerk_estimate_runs_and_prints_its_ratios():
+    r = subprocess.run([sys.executable, str(BENCH / "jerk_estimate.py"), "--layers", "E",
+                        "--runs", "1"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "layer E        all runs" in r.stdout and "ruckig/estimate" in r.stdout
+
+
 def test_interference_benchmark_runs_and_prints_its_ratio():
     r = subprocess.run([sys.executable, str(BENCH / "bench_interference.py")],
                        capture_output=True, text=True, timeout=600)
