@@ -42,7 +42,7 @@ from ruckig import ControlInterface, InputParameter, Ruckig, Trajectory
 from sdit_path.config import load_config
 from sdit_path.geometry.hemisphere import partition
 from sdit_path.geometry.paths import PathBuilder
-from sdit_path.timing.trajectory import RunGeometry, TimedRun, Timer
+from sdit_path.timing.trajectory import RunGeometry, TimedRun, Timer, axis_derivatives
 
 logging.getLogger("toppra").setLevel(logging.ERROR)
 TARGETS = {200: 1.05, 600: 1.05, 2000: 1.05, 5000: 1.10}
@@ -90,9 +90,7 @@ def jerk_bound(timer: Timer, timed: TimedRun, feed: float, step_mm: float = 0.05
     s = np.linspace(0.0, geo.length_mm, n + 1)
     q, _ = timer.axis_values(geo.points(s), timed.carry_in)
     h = s[1] - s[0]
-    d1 = np.gradient(q, h, axis=0, edge_order=2)
-    d2 = np.gradient(d1, h, axis=0, edge_order=2)
-    d3 = np.gradient(d2, h, axis=0, edge_order=2)
+    d1, d2, d3 = axis_derivatives(q, h)
     q1 = np.maximum(np.abs(d1), 1e-9)
     a_ub = np.min((timer.a_lim + np.abs(d2) * feed ** 2) / q1, axis=1)
 

@@ -44,7 +44,7 @@ from bench_timing import toppra_time
 from sdit_path.config import load_config
 from sdit_path.geometry.hemisphere import partition
 from sdit_path.geometry.paths import PathBuilder
-from sdit_path.timing.trajectory import TimedRun, Timer
+from sdit_path.timing.trajectory import TimedRun, Timer, axis_derivatives
 
 
 def estimate(timer: Timer, timed: TimedRun, feed: float, step_mm: float = 0.1,
@@ -55,9 +55,7 @@ def estimate(timer: Timer, timed: TimedRun, feed: float, step_mm: float = 0.1,
     s = np.linspace(0.0, geo.length_mm, n + 1)
     h = s[1] - s[0]
     q, _ = timer.axis_values(geo.points(s), timed.carry_in)
-    d1 = np.gradient(q, h, axis=0, edge_order=2)
-    d2 = np.gradient(d1, h, axis=0, edge_order=2)
-    d3 = np.gradient(d2, h, axis=0, edge_order=2)
+    d1, d2, d3 = axis_derivatives(q, h)
     cells, nax = np.arange(n), q.shape[1]
     nb = n + 1
     nv = 2 * nb + n  # b_k, a_k, t_m

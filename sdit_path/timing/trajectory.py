@@ -70,6 +70,14 @@ class RunGeometry:
         return self.curve.evaluate(self.u(s))
 
 
+def axis_derivatives(q: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """First, second and third derivatives along s of axis values ``q : (n, n_axes)``
+    sampled every ``h`` mm (second-order differences, one-sided at the ends)."""
+    d1 = np.gradient(q, h, axis=0, edge_order=2)
+    d2 = np.gradient(d1, h, axis=0, edge_order=2)
+    return d1, d2, np.gradient(d2, h, axis=0, edge_order=2)
+
+
 def _same(a: Budget, b: Budget, tol: float = 0.005) -> bool:
     """Neighbours with the same budget merge (a straight transit is one window)."""
     return (abs(a.v_cap - b.v_cap) <= tol * max(a.v_cap, b.v_cap)
@@ -153,9 +161,7 @@ class Timer:
         s = np.linspace(0.0, geo.length_mm, n + 1)
         h = s[1] - s[0]
         q, carry_out = self.axis_values(geo.points(s), carry)
-        d1 = np.gradient(q, h, axis=0, edge_order=2)
-        d2 = np.gradient(d1, h, axis=0, edge_order=2)
-        d3 = np.gradient(d2, h, axis=0, edge_order=2)
+        d1, d2, d3 = axis_derivatives(q, h)
         count = max(1, round(geo.length_mm / window_mm))
         edges = np.linspace(0, n, count + 1).round().astype(int)
         windows: list[tuple[float, Budget]] = []
