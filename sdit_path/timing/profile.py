@@ -9,10 +9,11 @@ here, vectorised, exactly as ruckig's polynomials.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
-from ruckig import InputParameter, Result, Ruckig, RuckigError, Trajectory
+from ruckig import ControlInterface, InputParameter, Result, Ruckig, RuckigError, Trajectory
 
 from ..arrays import frozen
 from ..errors import PlanError
@@ -161,6 +162,159 @@ class ChainProfile:
         return s, v, a, j, phase
 
 
+def plan_velocity(v_start: float, a_start: float, v_end: float, a_end: float,
+                  limits: PathLimits, label: str) -> Profile:
+    """ruckig (velocity interface) from speed and acceleration (v_start, a_start) to
+    (v_end, a_end); the profile's length is the path it covers on the way."""
+    otg = Ruckig(1)
+    inp = InputParameter(1)
+    inp.control_interface = ControlInterface.Velocity
+    inp.current_position = [0.0]
+    inp.current_velocity = [float(v_start)]
+    inp.current_acceleration = [float(a_start)]
+    inp.target_velocity = [float(v_end)]
+    inp.target_acceleration = [float(a_end)]
+    inp.max_velocity = [max(v_start, v_end) * 2.0 + 1.0]
+    inp.max_acceleration = [limits.a_max]
+    inp.max_jerk = [limits.j_max]
+    traj = Trajectory(1)
+    try:
+        result = otg.calculate(inp, traj)
+    except (RuntimeError, RuckigError) as exc:
+        raise PlanError(f"{label}: ruckig could not time a speed change: {exc}") from None
+    if result not in (Result.Working, Result.Finished):
+        raise PlanError(f"{label}: ruckig could not time a speed change ({result})")
+    prof = traj.profiles[0][0]
+    t0 = np.concatenate([[0.0], np.cumsum(np.array(prof.t, dtype=float))])
+    length = float(traj.at_time(traj.duration)[0][0])
+    return Profile(length, limits, frozen(t0), frozen(prof.p[:7]), frozen(prof.v[:7]),
+                   frozen(prof.a[:7]), frozen(prof.j[:7]))
+
+
+def cruise_profile(length_mm: float, limits: PathLimits) -> Profile:
+    """Constant speed ``limits.v_max`` over ``length_mm``."""
+    v = limits.v_max
+    t = length_mm / v
+    z = np.zeros(7)
+    return Profile(float(length_mm), limits, frozen(np.array([0, 0, 0, 0, t, t, t, t], float)),
+                   frozen(np.array([0, 0, 0, 0, length_mm, length_mm, length_mm], float)),
+                   frozen(np.full(7, float(v))), frozen(z), frozen(z.copy()))
+
+
+def _band(v0: float, a0: float, v1: float, a1: float, a_max: float, j_max: float
+          ) -> tuple[float, float]:
+    """Path length and time of the time-optimal speed-up from (v0, a0) to (v1, a1),
+    accelerations in [0, a_max] (jerk up to a peak, hold, jerk down: what ruckig's
+    velocity interface returns).  The ends must satisfy |a1^2 - a0^2| <= 2 j (v1 - v0).
+    A slow-down over the same band, run backwards, takes the same length and time."""
+    dv = v1 - v0
+    ramps = (2.0 * a_max * a_max - a0 * a0 - a1 * a1) / (2.0 * j_max)
+    if ramps <= dv:
+        peak, hold = a_max, (dv - ramps) / a_max
+    else:
+        peak, hold = math.sqrt(max(j_max * dv + 0.5 * (a0 * a0 + a1 * a1), 0.0)), 0.0
+    t1, t3 = (peak - a0) / j_max, (peak - a1) / j_max
+    d1 = v0 * t1 + a0 * t1 * t1 / 2.0 + j_max * t1 ** 3 / 6.0
+    va = v0 + a0 * t1 + j_max * t1 * t1 / 2.0
+    d2 = va * hold + peak * hold * hold / 2.0
+    vb = va + peak * hold
+    d3 = vb * t3 + peak * t3 * t3 / 2.0 - j_max * t3 ** 3 / 6.0
+    return d1 + d2 + d3, t1 + hold + t3
+
+
+@dataclass(frozen=True, slots=True)
+class _Ramp:
+    """A speed change in bands: speeds ``u`` at the band edges, acceleration magnitude
+    ``alpha`` there, and each band's limits ``a_max``, ``j_max``."""
+
+    length_mm: float
+    duration_s: float
+    u: tuple
+    alpha: tuple
+    a_max: tuple
+    j_max: tuple
+
+
+class _Ramps:
+    """Speed changes over consecutive windows ``(length, budget)``, in speed bands.
+
+    A change from v_lo to v_hi is cut into bands of at most ``band`` mm/s.  Each band
+    gets the acceleration and jerk that every window it crosses allows at the band's
+    top speed, so the slow part of a ramp is not held to the budget of its fast end
+    (on a 5-axis machine the C axis near the pole leaves a fast path little of either).
+    Bands join with the acceleration both allow, so the ramp is one motion with zero
+    acceleration only at its ends.  Which windows a band crosses depends on its limits,
+    so the limits are taken again over the windows found until they no longer change.
+    """
+
+    def __init__(self, windows: list[tuple[float, object]], band: float = 8.0):
+        self.windows = windows
+        self.band = band
+        self.cum = np.concatenate([[0.0], np.cumsum([w[0] for w in windows])])
+        self.caps = [w[1].v_cap for w in windows]
+
+    def window(self, s: float) -> int:
+        return int(np.clip(np.searchsorted(self.cum, s, side="right") - 1, 0,
+                           len(self.windows) - 1))
+
+    def _limits(self, first: int, last: int, v: float) -> tuple[float, float]:
+        a = j = math.inf
+        for w in range(first, last + 1):
+            if v > self.caps[w] * (1.0 + 1e-9):
+                return 0.0, 0.0
+            aw, jw = self.windows[w][1].at(v)
+            a, j = min(a, aw), min(j, jw)
+        return a, j
+
+    def ramp(self, v_lo: float, v_hi: float, anchor: float, direction: int) -> _Ramp | None:
+        """From v_lo up to v_hi starting at arc length ``anchor`` (direction +1), or
+        from v_hi down to v_lo ending there (-1).  None if it leaves the run or a
+        window it crosses cannot run that fast."""
+        if v_hi - v_lo <= 1e-9:
+            return _Ramp(0.0, 0.0, (v_lo,), (0.0,), (), ())
+        n = max(1, math.ceil((v_hi - v_lo) / self.band))
+        u = [v_lo + (v_hi - v_lo) * i / n for i in range(n + 1)]
+        w0 = self.window(anchor + direction * 1e-9)
+        cover = [(w0, w0)] * n
+        for _ in range(len(self.windows) + 2):
+            lim = [self._limits(lo, hi, u[i + 1]) for i, (lo, hi) in enumerate(cover)]
+            if any(a <= 0.0 or j <= 0.0 for a, j in lim):
+                return None
+            alpha = [0.0] * (n + 1)
+            for i in range(1, n):  # what both bands allow, reachable from either end
+                alpha[i] = min(lim[i - 1][0], lim[i][0],
+                               math.sqrt(alpha[i - 1] ** 2 + 2.0 * lim[i - 1][1] * (u[i] - u[i - 1])))
+            for i in range(n - 1, 0, -1):
+                alpha[i] = min(alpha[i], math.sqrt(alpha[i + 1] ** 2
+                                                   + 2.0 * lim[i][1] * (u[i + 1] - u[i])))
+            pos, time, grown = anchor, 0.0, []
+            for i in range(n):
+                d, t = _band(u[i], alpha[i], u[i + 1], alpha[i + 1], *lim[i])
+                end = pos + direction * d
+                if not -1e-9 <= end <= self.cum[-1] + 1e-9:
+                    return None
+                a, b = sorted((self.window(pos + direction * 1e-9),
+                               self.window(end - direction * 1e-9)))
+                grown.append((min(a, cover[i][0]), max(b, cover[i][1])))
+                pos, time = end, time + t
+            if grown == cover:
+                return _Ramp(abs(pos - anchor), time, tuple(u), tuple(alpha),
+                             tuple(a for a, _ in lim), tuple(j for _, j in lim))
+            cover = grown
+        return None
+
+    def realise(self, ramp: _Ramp, direction: int, top: float, binding: str,
+                label: str) -> list[Profile]:
+        """ruckig profiles of the bands, in time order."""
+        parts = []
+        for i in range(len(ramp.a_max)):
+            lim = PathLimits(top, ramp.a_max[i], ramp.j_max[i], binding)
+            u0, u1, a0, a1 = ramp.u[i], ramp.u[i + 1], ramp.alpha[i], ramp.alpha[i + 1]
+            parts.append(plan_velocity(u0, a0, u1, a1, lim, label) if direction > 0
+                         else plan_velocity(u1, -a1, u0, -a0, lim, label))
+        return parts if direction > 0 else parts[::-1]
+
+
 def _spans(windows: list[tuple[float, object]], reach: int) -> dict[tuple[int, int], object]:
     """The budget of every stretch of up to ``reach`` consecutive windows, keyed by
     (first boundary, last boundary): the weakest of its windows."""
@@ -174,100 +328,142 @@ def _spans(windows: list[tuple[float, object]], reach: int) -> dict[tuple[int, i
     return spans
 
 
-def _boundary_speeds(windows: list[tuple[float, object]], spans: dict, cum: np.ndarray,
-                     reach: int, slack: float) -> np.ndarray:
-    """Backward and forward reachability passes over the window boundaries.
-
-    A speed change may span up to ``reach`` windows under the weakest of their
-    budgets, so one change is not cut into steps that each start and end at zero
-    acceleration.  A stretch is only used where its speed cap admits the speed it
-    starts from."""
-    n = len(windows)
-    caps = [min(windows[k - 1][1].v_cap, windows[k][1].v_cap) for k in range(1, n)]
-    vb = np.array([0.0] + caps + [0.0])
+def _boundary_speeds(ramps: _Ramps, reach: int) -> list[float]:
+    """Backward and forward reachability passes over the window boundaries: the
+    highest speed at each from which the run can still slow down in time and which it
+    can reach in time, with speed changes spanning up to ``reach`` windows."""
+    n, cum, caps = len(ramps.windows), ramps.cum, ramps.caps
+    vb = [0.0] + [min(caps[k - 1], caps[k]) for k in range(1, n)] + [0.0]
     for k in range(n - 1, -1, -1):  # backward: able to slow down in time
         best = 0.0
         for m in range(k + 1, min(n, k + reach) + 1):
-            bud = spans[(k, m)]
-            if bud.v_cap >= vb[m] * (1.0 - 1e-12):
-                best = max(best, _reachable(vb[m], cum[m] - cum[k], bud,
-                                            min(vb[k], bud.v_cap), slack))
+            cap, length = min(caps[k:m]), cum[m] - cum[k]
+            if cap < vb[m] * (1.0 - 1e-12):
+                continue
+
+            def fits(v: float, m=m, length=length) -> bool:
+                r = ramps.ramp(vb[m], v, cum[m], -1)
+                return r is not None and r.length_mm <= length
+            best = max(best, _largest(fits, min(vb[m], cap, vb[k]), min(vb[k], cap), 30))
         vb[k] = min(vb[k], best)
     for m in range(1, n + 1):  # forward: able to speed up in time
         best = 0.0
         for k in range(max(0, m - reach), m):
-            bud = spans[(k, m)]
-            if bud.v_cap >= vb[k] * (1.0 - 1e-12):
-                best = max(best, _reachable(vb[k], cum[m] - cum[k], bud,
-                                            min(vb[m], bud.v_cap), slack))
+            cap, length = min(caps[k:m]), cum[m] - cum[k]
+            if cap < vb[k] * (1.0 - 1e-12):
+                continue
+
+            def fits(v: float, k=k, length=length) -> bool:
+                r = ramps.ramp(vb[k], v, cum[k], +1)
+                return r is not None and r.length_mm <= length
+            best = max(best, _largest(fits, min(vb[k], cap, vb[m]), min(vb[m], cap), 30))
         vb[m] = min(vb[m], best)
     return vb
 
 
-def _fastest_split(windows: list[tuple[float, object]], cum: np.ndarray, reach: int,
-                   label: str, slack: float) -> list[tuple[int, Profile]] | None:
+def _stretch(ramps: _Ramps, vb: list[float], k: int, m: int
+             ) -> tuple[float, float, _Ramp, _Ramp] | None:
+    """Fastest motion from boundary k to m between their speeds: speed up to the
+    highest top speed that still leaves room to slow down, cruise, slow down.
+    (time, top, up, down), or None if even the boundary speeds do not fit."""
+    cum = ramps.cum
+    length, cap = cum[m] - cum[k], min(ramps.caps[k:m])
+
+    def build(top: float):
+        up = ramps.ramp(vb[k], top, cum[k], +1)
+        down = ramps.ramp(vb[m], top, cum[m], -1)
+        if up is None or down is None or up.length_mm + down.length_mm > length * (1 + 1e-9):
+            return None
+        return up, down
+
+    low = max(vb[k], vb[m])
+    if low > cap * (1.0 + 1e-9) or build(low) is None:
+        return None
+    top = _largest(lambda v: build(v) is not None, low, cap, 25)
+    up, down = build(top)
+    rest = max(length - up.length_mm - down.length_mm, 0.0)
+    return up.duration_s + down.duration_s + (rest / top if top > 0 else 0.0), top, up, down
+
+
+def _fastest_split(ramps: _Ramps, reach: int, label: str) -> list[Profile] | None:
     """Boundary speeds, then the split of the run into stretches of up to ``reach``
-    windows (one ruckig profile each, rest-to-rest in acceleration at the stretch
-    ends) with the least total time, by dynamic programming over the boundaries.
-    None if no split fits the boundary speeds."""
-    n = len(windows)
-    spans = _spans(windows, reach)
-    vb = _boundary_speeds(windows, spans, cum, reach, slack)
-    cost = np.full(n + 1, np.inf)
+    windows (zero acceleration at the stretch ends) with the least total time, by
+    dynamic programming over the boundaries; realised by ruckig.  None if no split
+    fits the boundary speeds or ruckig's profiles do not cover the run."""
+    n, cum = len(ramps.windows), ramps.cum
+    vb = _boundary_speeds(ramps, reach)
+    cost = [math.inf] * (n + 1)
     cost[0] = 0.0
-    choice: list[tuple[int, Profile] | None] = [None] * (n + 1)
+    choice: list = [None] * (n + 1)
     for m in range(1, n + 1):
         for k in range(max(0, m - reach), m):
-            if not np.isfinite(cost[k]):
+            if not math.isfinite(cost[k]):
                 continue
-            bud, length = spans[(k, m)], cum[m] - cum[k]
-            low = max(vb[k], vb[m])
-            if low > bud.v_cap * (1.0 + 1e-9):
-                continue
-            a, j = bud.at(low)
-            if not (a > 0 and j > 0) or (change_distance(vb[k], vb[m], a * slack, j * slack)
-                                         > length * (1.0 + 1e-9)):
-                continue
-            top = _peak(vb[k], vb[m], length, bud, slack)
-            try:
-                prof = plan_state(length, vb[k], vb[m], bud.limits(top), label)
-            except PlanError:
-                continue
-            if cost[k] + prof.duration_s < cost[m]:
-                cost[m] = cost[k] + prof.duration_s
-                choice[m] = (k, prof)
-    if not np.isfinite(cost[n]):
+            found = _stretch(ramps, vb, k, m)
+            if found is not None and cost[k] + found[0] < cost[m]:
+                cost[m] = cost[k] + found[0]
+                choice[m] = (k, found)
+    if not math.isfinite(cost[n]):
         return None
-    split, m = [], n
+    chosen, m = [], n
     while m > 0:
-        k, prof = choice[m]
-        split.append((k, prof))
+        k, found = choice[m]
+        chosen.append((k, m, found))
         m = k
-    return split[::-1]
+    parts = []
+    for k, m, (_, top, up, down) in chosen[::-1]:
+        binding = min((ramps.windows[w][1] for w in range(k, m)), key=lambda b: b.v_cap).binding
+        rise = ramps.realise(up, +1, top, binding, label)
+        fall = ramps.realise(down, -1, top, binding, label)
+        covered = sum(p.length_mm for p in rise + fall)
+        rest = cum[m] - cum[k] - covered
+        if rest < -1e-9 * max(1.0, cum[m] - cum[k]):
+            return None  # ruckig's profiles are longer than the band formula said
+        if rest > 1e-12:
+            rise.append(cruise_profile(rest, PathLimits(top, 0.0, 0.0, binding)))
+        parts += rise + fall
+    return parts
 
 
-def plan_chain(windows: list[tuple[float, object]], label: str, slack: float = 0.98,
-               reach: int = 8) -> ChainProfile:
+def plan_chain(windows: list[tuple[float, object]], label: str, reach: int = 8,
+               band_mm_per_s: float = 8.0) -> ChainProfile:
     """Rest-to-rest over consecutive windows ``(length, budget)``.
 
     Boundary speeds come from backward and forward reachability passes in which a
     speed change may span up to ``reach`` windows; the run is then split into
-    stretches of up to ``reach`` windows, each planned by ruckig with the weakest
-    budget of its windows at the highest speed it reaches, and the split with the
-    least total time is kept.  Each window still gets acceleration and jerk at the
-    speed it runs, and a ramp is no longer cut into steps at every window boundary.
-    Should no split fit (rounding at a boundary), the run is planned window by window,
-    which always fits."""
-    cum = np.concatenate([[0.0], np.cumsum([w[0] for w in windows])])
-    split = _fastest_split(windows, cum, reach, label, slack) if reach > 1 else None
-    if split is None:
+    stretches of up to ``reach`` windows (speed up, cruise, slow down) and the split
+    with the least total time is kept.  Every speed change is cut into bands of at
+    most ``band_mm_per_s`` (see :class:`_Ramps`), each planned by ruckig with the
+    limits of the windows it crosses at the speed it reaches.  Should no split fit
+    (rounding at a boundary), the run is planned window by window at each window's
+    constant limits, which always fits."""
+    ramps = _Ramps(windows, band_mm_per_s)
+    parts = _fastest_split(ramps, reach, label) if reach > 1 else None
+    if parts is None:
+        cum = ramps.cum
         spans = _spans(windows, 1)
-        vb = _boundary_speeds(windows, spans, cum, 1, slack)
-        split = []
+        vb = _window_speeds(windows, spans, cum)
+        parts = []
         for k, (length, bud) in enumerate(windows):
-            top = _peak(vb[k], vb[k + 1], length, bud, slack)
-            split.append((k, plan_state(length, vb[k], vb[k + 1], bud.limits(top), label)))
-    parts = tuple(prof for _, prof in split)
-    s0 = np.array([cum[k] for k, _ in split])
+            top = _peak(vb[k], vb[k + 1], length, bud, 0.98)
+            parts.append(plan_state(length, vb[k], vb[k + 1], bud.limits(top), label))
+    s0 = np.concatenate([[0.0], np.cumsum([p.length_mm for p in parts])[:-1]])
     t0 = np.concatenate([[0.0], np.cumsum([p.duration_s for p in parts])[:-1]])
-    return ChainProfile(parts, frozen(s0), frozen(t0))
+    return ChainProfile(tuple(parts), frozen(s0), frozen(t0))
+
+
+def _window_speeds(windows: list[tuple[float, object]], spans: dict, cum: np.ndarray,
+                   slack: float = 0.98) -> np.ndarray:
+    """Boundary speeds for the window-by-window fallback (constant limits per window)."""
+    n = len(windows)
+    caps = [min(windows[k - 1][1].v_cap, windows[k][1].v_cap) for k in range(1, n)]
+    vb = np.array([0.0] + caps + [0.0])
+    for k in range(n - 1, -1, -1):
+        bud = spans[(k, k + 1)]
+        vb[k] = min(vb[k], _reachable(vb[k + 1], cum[k + 1] - cum[k], bud,
+                                      min(vb[k], bud.v_cap), slack))
+    for m in range(1, n + 1):
+        bud = spans[(m - 1, m)]
+        vb[m] = min(vb[m], _reachable(vb[m - 1], cum[m] - cum[m - 1], bud,
+                                      min(vb[m], bud.v_cap), slack))
+    return vb
