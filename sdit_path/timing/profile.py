@@ -2,13 +2,19 @@
 
 ruckig is used as a one-degree-of-freedom state-to-state planner (``Ruckig(1)``: never
 with waypoint capacity, which in the community version sends the problem to a cloud
-service).  The resulting seven-phase profile (jerk-up, constant acceleration,
+service).  A run is cut into windows, each with the budget its curvature leaves
+(:mod:`~sdit_path.timing.limits`).  Speed changes span several windows and are cut
+into speed bands; each band is one ruckig profile (velocity interface) from one speed
+and acceleration to the next, limited by the windows it crosses at the speed it
+reaches, so a ramp is one motion that accelerates hard while slow and gently where
+speed eats the budget.  Every profile (a seven-phase jerk-up, constant acceleration,
 jerk-down, cruise, and the mirror) is kept as its phase boundaries and evaluated
 here, vectorised, exactly as ruckig's polynomials.
 """
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -251,11 +257,11 @@ class _Ramps:
         self.windows = windows
         self.band = band
         self.cum = np.concatenate([[0.0], np.cumsum([w[0] for w in windows])])
+        self._edges = self.cum.tolist()
         self.caps = [w[1].v_cap for w in windows]
 
     def window(self, s: float) -> int:
-        return int(np.clip(np.searchsorted(self.cum, s, side="right") - 1, 0,
-                           len(self.windows) - 1))
+        return min(max(bisect.bisect_right(self._edges, s) - 1, 0), len(self.windows) - 1)
 
     def _limits(self, first: int, last: int, v: float) -> tuple[float, float]:
         a = j = math.inf
@@ -266,18 +272,19 @@ class _Ramps:
             a, j = min(a, aw), min(j, jw)
         return a, j
 
-    def ramp(self, v_lo: float, v_hi: float, anchor: float, direction: int) -> _Ramp | None:
+    def ramp(self, v_lo: float, v_hi: float, anchor: float, direction: int,
+             within: float = math.inf) -> _Ramp | None:
         """From v_lo up to v_hi starting at arc length ``anchor`` (direction +1), or
-        from v_hi down to v_lo ending there (-1).  None if it leaves the run or a
-        window it crosses cannot run that fast."""
+        from v_hi down to v_lo ending there (-1).  None if it takes longer than
+        ``within`` mm, leaves the run, or crosses a window that cannot run that fast."""
         if v_hi - v_lo <= 1e-9:
             return _Ramp(0.0, 0.0, (v_lo,), (0.0,), (), ())
         n = max(1, math.ceil((v_hi - v_lo) / self.band))
         u = [v_lo + (v_hi - v_lo) * i / n for i in range(n + 1)]
         w0 = self.window(anchor + direction * 1e-9)
         cover = [(w0, w0)] * n
+        lim = [self._limits(w0, w0, u[i + 1]) for i in range(n)]
         for _ in range(len(self.windows) + 2):
-            lim = [self._limits(lo, hi, u[i + 1]) for i, (lo, hi) in enumerate(cover)]
             if any(a <= 0.0 or j <= 0.0 for a, j in lim):
                 return None
             alpha = [0.0] * (n + 1)
@@ -291,7 +298,8 @@ class _Ramps:
             for i in range(n):
                 d, t = _band(u[i], alpha[i], u[i + 1], alpha[i + 1], *lim[i])
                 end = pos + direction * d
-                if not -1e-9 <= end <= self.cum[-1] + 1e-9:
+                if (not -1e-9 <= end <= self._edges[-1] + 1e-9
+                        or abs(end - anchor) > within * (1.0 + 1e-9)):
                     return None
                 a, b = sorted((self.window(pos + direction * 1e-9),
                                self.window(end - direction * 1e-9)))
@@ -300,6 +308,8 @@ class _Ramps:
             if grown == cover:
                 return _Ramp(abs(pos - anchor), time, tuple(u), tuple(alpha),
                              tuple(a for a, _ in lim), tuple(j for _, j in lim))
+            lim = [lim[i] if grown[i] == cover[i] else self._limits(*grown[i], u[i + 1])
+                   for i in range(n)]
             cover = grown
         return None
 
@@ -338,25 +348,23 @@ def _boundary_speeds(ramps: _Ramps, reach: int) -> list[float]:
         best = 0.0
         for m in range(k + 1, min(n, k + reach) + 1):
             cap, length = min(caps[k:m]), cum[m] - cum[k]
-            if cap < vb[m] * (1.0 - 1e-12):
+            if cap < vb[m] * (1.0 - 1e-12) or min(vb[k], cap) <= best:
                 continue
 
             def fits(v: float, m=m, length=length) -> bool:
-                r = ramps.ramp(vb[m], v, cum[m], -1)
-                return r is not None and r.length_mm <= length
-            best = max(best, _largest(fits, min(vb[m], cap, vb[k]), min(vb[k], cap), 30))
+                return ramps.ramp(vb[m], v, cum[m], -1, length) is not None
+            best = max(best, _largest(fits, min(vb[m], cap, vb[k]), min(vb[k], cap), 20))
         vb[k] = min(vb[k], best)
     for m in range(1, n + 1):  # forward: able to speed up in time
         best = 0.0
         for k in range(max(0, m - reach), m):
             cap, length = min(caps[k:m]), cum[m] - cum[k]
-            if cap < vb[k] * (1.0 - 1e-12):
+            if cap < vb[k] * (1.0 - 1e-12) or min(vb[m], cap) <= best:
                 continue
 
             def fits(v: float, k=k, length=length) -> bool:
-                r = ramps.ramp(vb[k], v, cum[k], +1)
-                return r is not None and r.length_mm <= length
-            best = max(best, _largest(fits, min(vb[k], cap, vb[m]), min(vb[m], cap), 30))
+                return ramps.ramp(vb[k], v, cum[k], +1, length) is not None
+            best = max(best, _largest(fits, min(vb[k], cap, vb[m]), min(vb[m], cap), 20))
         vb[m] = min(vb[m], best)
     return vb
 
@@ -370,16 +378,16 @@ def _stretch(ramps: _Ramps, vb: list[float], k: int, m: int
     length, cap = cum[m] - cum[k], min(ramps.caps[k:m])
 
     def build(top: float):
-        up = ramps.ramp(vb[k], top, cum[k], +1)
-        down = ramps.ramp(vb[m], top, cum[m], -1)
-        if up is None or down is None or up.length_mm + down.length_mm > length * (1 + 1e-9):
+        up = ramps.ramp(vb[k], top, cum[k], +1, length)
+        down = None if up is None else ramps.ramp(vb[m], top, cum[m], -1, length - up.length_mm)
+        if down is None:
             return None
         return up, down
 
     low = max(vb[k], vb[m])
     if low > cap * (1.0 + 1e-9) or build(low) is None:
         return None
-    top = _largest(lambda v: build(v) is not None, low, cap, 25)
+    top = _largest(lambda v: build(v) is not None, low, cap, 18)
     up, down = build(top)
     rest = max(length - up.length_mm - down.length_mm, 0.0)
     return up.duration_s + down.duration_s + (rest / top if top > 0 else 0.0), top, up, down
@@ -397,8 +405,8 @@ def _fastest_split(ramps: _Ramps, reach: int, label: str) -> list[Profile] | Non
     choice: list = [None] * (n + 1)
     for m in range(1, n + 1):
         for k in range(max(0, m - reach), m):
-            if not math.isfinite(cost[k]):
-                continue
+            if not cost[k] + (cum[m] - cum[k]) / min(ramps.caps[k:m]) < cost[m]:
+                continue  # not even at its speed cap all the way would it be quicker
             found = _stretch(ramps, vb, k, m)
             if found is not None and cost[k] + found[0] < cost[m]:
                 cost[m] = cost[k] + found[0]
