@@ -19,7 +19,14 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from ruckig import ControlInterface, InputParameter, Result, Ruckig, RuckigError, Trajectory
+from ruckig import (
+    ControlInterface,
+    InputParameter,
+    Result,
+    Ruckig,
+    RuckigError,
+    Trajectory,
+)
 
 from ..arrays import frozen
 from ..errors import PlanError
