@@ -127,16 +127,25 @@ def plan_state(length_mm: float, v_start: float, v_end: float, limits: PathLimit
     inp.max_acceleration = [limits.a_max]
     inp.max_jerk = [limits.j_max]
     inp.min_velocity = [0.0]
+    return _solve(otg, inp, limits, f"{label}: ruckig could not time the run", float(length_mm))
+
+
+def _solve(otg: Ruckig, inp: InputParameter, limits: PathLimits, failure: str,
+           length_mm: float | None = None) -> Profile:
+    """Run ruckig on ``inp`` and keep its profile; its length is ``length_mm`` (the
+    target) or, if None, the path the profile covers."""
     traj = Trajectory(1)
     try:
         result = otg.calculate(inp, traj)
     except (RuntimeError, RuckigError) as exc:
-        raise PlanError(f"{label}: ruckig could not time the run: {exc}") from None
+        raise PlanError(f"{failure}: {exc}") from None
     if result not in (Result.Working, Result.Finished):
-        raise PlanError(f"{label}: ruckig could not time the run ({result})")
+        raise PlanError(f"{failure} ({result})")
     prof = traj.profiles[0][0]
     t0 = np.concatenate([[0.0], np.cumsum(np.array(prof.t, dtype=float))])
-    return Profile(float(length_mm), limits, frozen(t0), frozen(prof.p[:7]), frozen(prof.v[:7]),
+    if length_mm is None:
+        length_mm = float(traj.at_time(traj.duration)[0][0])
+    return Profile(length_mm, limits, frozen(t0), frozen(prof.p[:7]), frozen(prof.v[:7]),
                    frozen(prof.a[:7]), frozen(prof.j[:7]))
 
 
@@ -190,18 +199,7 @@ def plan_velocity(v_start: float, a_start: float, v_end: float, a_end: float,
     inp.max_velocity = [max(v_start, v_end) * 2.0 + 1.0]
     inp.max_acceleration = [limits.a_max]
     inp.max_jerk = [limits.j_max]
-    traj = Trajectory(1)
-    try:
-        result = otg.calculate(inp, traj)
-    except (RuntimeError, RuckigError) as exc:
-        raise PlanError(f"{label}: ruckig could not time a speed change: {exc}") from None
-    if result not in (Result.Working, Result.Finished):
-        raise PlanError(f"{label}: ruckig could not time a speed change ({result})")
-    prof = traj.profiles[0][0]
-    t0 = np.concatenate([[0.0], np.cumsum(np.array(prof.t, dtype=float))])
-    length = float(traj.at_time(traj.duration)[0][0])
-    return Profile(length, limits, frozen(t0), frozen(prof.p[:7]), frozen(prof.v[:7]),
-                   frozen(prof.a[:7]), frozen(prof.j[:7]))
+    return _solve(otg, inp, limits, f"{label}: ruckig could not time a speed change")
 
 
 def cruise_profile(length_mm: float, limits: PathLimits) -> Profile:
@@ -332,19 +330,6 @@ class _Ramps:
         return parts if direction > 0 else parts[::-1]
 
 
-def _spans(windows: list[tuple[float, object]], reach: int) -> dict[tuple[int, int], object]:
-    """The budget of every stretch of up to ``reach`` consecutive windows, keyed by
-    (first boundary, last boundary): the weakest of its windows."""
-    spans = {}
-    for k in range(len(windows)):
-        bud = windows[k][1]
-        spans[(k, k + 1)] = bud
-        for m in range(k + 2, min(len(windows), k + reach) + 1):
-            bud = bud.weaker(windows[m - 1][1])
-            spans[(k, m)] = bud
-    return spans
-
-
 def _boundary_speeds(ramps: _Ramps, reach: int) -> list[float]:
     """Backward and forward reachability passes over the window boundaries: the
     highest speed at each from which the run can still slow down in time and which it
@@ -455,9 +440,7 @@ def plan_chain(windows: list[tuple[float, object]], label: str, reach: int = 8,
     ramps = _Ramps(windows, band_mm_per_s)
     parts = _fastest_split(ramps, reach, label) if reach > 1 else None
     if parts is None:
-        cum = ramps.cum
-        spans = _spans(windows, 1)
-        vb = _window_speeds(windows, spans, cum)
+        vb = _window_speeds(windows, ramps.cum)
         parts = []
         for k, (length, bud) in enumerate(windows):
             top = _peak(vb[k], vb[k + 1], length, bud, 0.98)
@@ -467,18 +450,18 @@ def plan_chain(windows: list[tuple[float, object]], label: str, reach: int = 8,
     return ChainProfile(tuple(parts), frozen(s0), frozen(t0))
 
 
-def _window_speeds(windows: list[tuple[float, object]], spans: dict, cum: np.ndarray,
+def _window_speeds(windows: list[tuple[float, object]], cum: np.ndarray,
                    slack: float = 0.98) -> np.ndarray:
     """Boundary speeds for the window-by-window fallback (constant limits per window)."""
     n = len(windows)
     caps = [min(windows[k - 1][1].v_cap, windows[k][1].v_cap) for k in range(1, n)]
     vb = np.array([0.0] + caps + [0.0])
     for k in range(n - 1, -1, -1):
-        bud = spans[(k, k + 1)]
+        bud = windows[k][1]
         vb[k] = min(vb[k], _reachable(vb[k + 1], cum[k + 1] - cum[k], bud,
                                       min(vb[k], bud.v_cap), slack))
     for m in range(1, n + 1):
-        bud = spans[(m - 1, m)]
+        bud = windows[m - 1][1]
         vb[m] = min(vb[m], _reachable(vb[m - 1], cum[m] - cum[m - 1], bud,
                                       min(vb[m], bud.v_cap), slack))
     return vb
