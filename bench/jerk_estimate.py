@@ -104,6 +104,7 @@ def estimate(timer: Timer, timed: TimedRun, feed: float, step_mm: float = 0.1,
     # start from the planned profile (feasible within its limits)
     tt = np.linspace(0.0, timed.profile.duration_s, 20000)
     ps, pv, *_ = timed.profile.evaluate(tt)
+    ps, pv = timed.param.s(ps), timed.param.ds(ps) * pv  # the ball's arc length and speed
     b = np.minimum(np.interp(s, ps, pv) ** 2 * 0.98, v_cap ** 2)
     best = math.inf
     for _ in range(iterations):

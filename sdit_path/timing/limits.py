@@ -1,6 +1,8 @@
-"""Path limits along arc length that keep every machine axis within its own limits.
+"""Path limits along a run that keep every machine axis within its own limits.
 
-With ``s`` the ball's arc length in the table frame and ``q_i(s)`` an axis value,
+With ``s`` the path parameter (the ball's arc length in the table frame, or the arc
+length of the machine's axis path: :class:`~sdit_path.timing.trajectory.RunParameter`)
+and ``q_i(s)`` an axis value,
 
     dq_i/dt    = q_i' v
     d2q_i/dt2  = q_i'' v^2 + q_i' a

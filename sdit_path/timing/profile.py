@@ -1,4 +1,4 @@
-"""Rest-to-rest jerk-limited motion along a run's arc length, planned by ruckig.
+"""Rest-to-rest jerk-limited motion along a run's path parameter, planned by ruckig.
 
 ruckig is used as a one-degree-of-freedom state-to-state planner (``Ruckig(1)``: never
 with waypoint capacity, which in the community version sends the problem to a cloud

@@ -1,7 +1,8 @@
 """Timed trajectories: where the machine is at every moment of a layer program.
 
-Every run (dwell to dwell) is timed along the ball's arc length by ruckig with limits
-from :mod:`~sdit_path.timing.limits`; at every static node the machine rests for the
+Every run (dwell to dwell) is timed by ruckig along the arc length of the machine's
+axis path (:class:`RunParameter`; on a machine without rotary axes that is the ball's
+arc length), with limits from :mod:`~sdit_path.timing.limits`; at every static node the machine rests for the
 dwell; where a program steps over left-out segments (bar off) it repositions along
 straight lines, rest to rest.  The program's own first positioning move (from wherever
 the machine was) is not part of the trajectory: time 0 is the start of the first dwell.
@@ -70,6 +71,47 @@ class RunGeometry:
         return self.curve.evaluate(self.u(s))
 
 
+class RunParameter:
+    """What a run is timed along: the arc length of the machine's axis path.
+
+    It counts every linear axis in mm and every rotary axis at ``a_ref / A_r`` mm per
+    rad (``a_ref`` the smallest linear acceleration limit, ``A_r`` the rotary axis'
+    own), and is scaled to the length of the ball's path, so that windows of a given
+    length are as many along either.  On a machine without rotary axes it is the
+    ball's arc length ``s`` itself, and the map is the identity.  Where a table turns fast under a slow ball, the
+    ball's arc length is a poor parameter: the rotary angle bends tightly along it, and
+    its curvature terms (``q'' v^2``, ``q''' v^3``) eat the whole budget of constant
+    path limits although the axis itself moves smoothly.  Along the axis path the
+    dominant axis moves nearly linearly, and the same limits lose little.
+
+    ``length_mm`` is the parameter's length; :meth:`s` maps it to the ball's arc
+    length, :meth:`ds` is ``ds/dsigma`` (the ball's speed per unit parameter speed);
+    both come from one quintic interpolant, whose third derivative is continuous."""
+
+    def __init__(self, length_mm: float, s_of_sigma: BSpline | None = None,
+                 ball_length_mm: float | None = None):
+        self.length_mm = float(length_mm)
+        self._s = s_of_sigma
+        self._ds = None if s_of_sigma is None else s_of_sigma.derivative()
+        self._ball = self.length_mm if ball_length_mm is None else float(ball_length_mm)
+
+    @property
+    def identity(self) -> bool:
+        return self._s is None
+
+    def s(self, sigma: np.ndarray) -> np.ndarray:
+        """The ball's arc length at parameter values ``sigma``."""
+        if self._s is None:
+            return sigma
+        return np.clip(self._s(np.clip(sigma, 0.0, self.length_mm)), 0.0, self._ball)
+
+    def ds(self, sigma: np.ndarray) -> np.ndarray:
+        """``ds/dsigma`` at parameter values ``sigma``."""
+        if self._ds is None:
+            return np.ones_like(np.asarray(sigma, dtype=float))
+        return self._ds(np.clip(sigma, 0.0, self.length_mm))
+
+
 def axis_derivatives(q: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """First, second and third derivatives along s of axis values ``q : (n, n_axes)``
     sampled every ``h`` mm (second-order differences, one-sided at the ends)."""
@@ -87,10 +129,13 @@ def _same(a: Budget, b: Budget, tol: float = 0.005) -> bool:
 
 @dataclass(frozen=True, slots=True)
 class TimedRun:
+    """A run timed along ``param`` (the profile's position is that parameter)."""
+
     geometry: RunGeometry
     profile: ChainProfile
     start_s: float
     carry_in: float | None
+    param: RunParameter
 
 
 @dataclass(frozen=True, slots=True)
@@ -140,42 +185,92 @@ class Timer:
         self.v_lim = np.array([a.max_velocity for a in axes])
         self.a_lim = np.array([a.max_acceleration for a in axes])
         self.j_lim = np.array([a.max_jerk for a in axes])
+        self._weights = None
+        if self.kin.rotary:  # mm per axis unit in the axis path's arc length (RunParameter)
+            a_ref = min((self.a_lim[i] for i in self.kin.linear), default=1.0)
+            self._weights = np.where([a.is_rotary for a in axes], a_ref / self.a_lim, 1.0)
 
     def axis_values(self, points: np.ndarray, carry: float | None) -> tuple[np.ndarray, float | None]:
         angles, carry_out = self.schedule.angles(points, carry)
         return self.kin.inverse(points, angles), carry_out
 
-    def run_windows(self, geo: RunGeometry, carry: float | None, step_mm: float = 0.1,
+    def parameter(self, geo: RunGeometry, carry: float | None, step_mm: float = 0.005,
+                  per_knot: int = 64) -> RunParameter:
+        """The :class:`RunParameter` of a run (the identity without rotary axes)."""
+        if self._weights is None:
+            return RunParameter(geo.length_mm)
+        intervals = len(geo.curve.interval_knots) - 1
+        step = min(step_mm, geo.length_mm / (intervals * per_knot))
+        n = max(256, math.ceil(geo.length_mm / step))
+        s = np.linspace(0.0, geo.length_mm, n + 1)
+        q, _ = self.axis_values(geo.points(s), carry)
+        g = np.linalg.norm(np.gradient(q, s[1] - s[0], axis=0, edge_order=2) * self._weights,
+                           axis=1)
+        sigma = np.concatenate([[0.0], np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(s))])
+        sigma *= geo.length_mm / sigma[-1]  # as long as the ball's path: same windows
+        return RunParameter(geo.length_mm, make_interp_spline(sigma, s, k=5), geo.length_mm)
+
+    def run_windows(self, geo: RunGeometry, carry: float | None,
+                    param: RunParameter | None = None, step_mm: float = 0.1,
                     window_mm: float = 2.0, per_knot: int = 16
                     ) -> tuple[list[tuple[float, Budget]], float | None]:
-        """The run cut into windows of about ``window_mm``, each with its own budget
-        (from the axis derivatives inside it); neighbours with the same budget merge.
+        """The run cut into windows of about ``window_mm`` of its parameter (``param``,
+        by default the ball's arc length), each with its own budget (from the axis
+        derivatives inside it); neighbours with the same budget merge.
 
         The derivatives are taken on a grid of at most ``step_mm`` and at least
         ``per_knot`` points per knot interval: the fit puts its knots densest where the
         curve turns tightest, and a coarser grid would average the largest third
-        derivatives away (a crest with a 0.35 mm radius was under-read by half)."""
+        derivatives away (a crest with a 0.35 mm radius was under-read by half).  The
+        feed caps the parameter's speed at ``feed / max ds/dsigma`` in each window,
+        with the largest step of ``ds/dsigma`` between grid points added so that the
+        ball keeps within the feed between them too."""
+        param = param or RunParameter(geo.length_mm)
+        length = param.length_mm
         intervals = len(geo.curve.interval_knots) - 1
-        step = min(step_mm, geo.length_mm / (intervals * per_knot))
-        n = max(64, math.ceil(geo.length_mm / step))
-        s = np.linspace(0.0, geo.length_mm, n + 1)
-        h = s[1] - s[0]
-        q, carry_out = self.axis_values(geo.points(s), carry)
+        step = min(step_mm, length / (intervals * per_knot))
+        n = max(64, math.ceil(length / step))
+        x = np.linspace(0.0, length, n + 1)
+        h = x[1] - x[0]
+        q, carry_out = self.axis_values(geo.points(param.s(x)), carry)
         d1, d2, d3 = axis_derivatives(q, h)
-        count = max(1, round(geo.length_mm / window_mm))
+        ds = param.ds(x)
+        count = max(1, round(length / window_mm))
         edges = np.linspace(0, n, count + 1).round().astype(int)
         windows: list[tuple[float, Budget]] = []
         for a, b in zip(edges[:-1], edges[1:]):
             sl = slice(max(a - 1, 0), min(b + 2, n + 1))  # one grid point of overlap
+            ball_per_param = ds[sl].max() + np.abs(np.diff(ds[sl])).max(initial=0.0)
             bud = budget(d1[sl], d2[sl], d3[sl], self.v_lim, self.a_lim, self.j_lim,
-                         self.kin.names, self.feed)
-            length = s[b] - s[a]
+                         self.kin.names, self.feed / ball_per_param)
+            span = x[b] - x[a]
             if windows and _same(windows[-1][1], bud):
                 prev_len, prev = windows[-1]
-                windows[-1] = (prev_len + length, prev.weaker(bud))
+                windows[-1] = (prev_len + span, prev.weaker(bud))
             else:
-                windows.append((length, bud))
+                windows.append((span, bud))
         return windows, carry_out
+
+    def time_run(self, geo: RunGeometry, carry: float | None, label: str
+                 ) -> tuple[ChainProfile, RunParameter, float | None]:
+        """A run's profile, the parameter it runs along, and the azimuth carry after it.
+
+        It is timed along the ball's arc length; where something other than the feed
+        caps the speed on a machine with rotary axes, it is timed along the axis path
+        (:class:`RunParameter`) too, and the quicker of the two is kept.  Along the
+        axis path the feed caps a speed that is not the ball's, and the cap follows
+        ``ds/dsigma`` window by window: where the feed alone binds, the ball's arc
+        length is as quick and cheaper to plan."""
+        param = RunParameter(geo.length_mm)
+        windows, carry_out = self.run_windows(geo, carry, param)
+        prof = plan_chain(windows, label)
+        if self._weights is None or all(b.binding == "feed" for _, b in windows):
+            return prof, param, carry_out
+        axis_path = self.parameter(geo, carry)
+        other = plan_chain(self.run_windows(geo, carry, axis_path)[0], label)
+        if other.duration_s < prof.duration_s:
+            return other, axis_path, carry_out
+        return prof, param, carry_out
 
     def line_limits(self, a: np.ndarray, b: np.ndarray, angles_from: dict, angles_to: dict
                     ) -> PathLimits:
@@ -203,9 +298,9 @@ class Timer:
                 t += item.seconds
             elif isinstance(item, Run):
                 geo = RunGeometry(item)
-                windows, carry_out = self.run_windows(geo, carry)
-                prof = plan_chain(windows, f"layer {path.layer}, {item.pieces[0].id}")
-                items.append(TimedRun(geo, prof, t, carry))
+                prof, param, carry_out = self.time_run(geo, carry,
+                                                       f"layer {path.layer}, {item.pieces[0].id}")
+                items.append(TimedRun(geo, prof, t, carry, param))
                 end = item.curve.control_points_mm[-1][None, :]
                 last_angles = {k: float(v[0]) for k, v in self.schedule.angles(end, carry)[0].items()}
                 carry = carry_out
@@ -270,8 +365,8 @@ def sample(timed: TimedLayer, timer: Timer, rate_hz: float = 1000.0) -> Samples:
             q[sel], _ = timer.axis_values(np.asarray(p), _carry_at(timed, k))
             continue
         s, v, _, _, ph = item.profile.evaluate(t[sel] - item.start_s)
-        speed[sel] = v
         if isinstance(item, TimedLine):
+            speed[sel] = v
             f = np.clip(s / max(item.profile.length_mm, 1e-12), 0.0, 1.0)
             p = item.a_mm + (item.b_mm - item.a_mm) * f[:, None]
             ang = {a: item.angles_from[a] + (item.angles_to[a] - item.angles_from[a]) * f
@@ -282,6 +377,8 @@ def sample(timed: TimedLayer, timer: Timer, rate_hz: float = 1000.0) -> Samples:
             phase[sel] = "reposition"
             continue
         geo = item.geometry
+        speed[sel] = v if item.param.identity else item.param.ds(s) * v
+        s = item.param.s(s)
         u = geo.u(s)
         p = geo.curve.evaluate(u)
         ball[sel] = p
