@@ -120,6 +120,12 @@ def axis_derivatives(q: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, n
     return d1, d2, np.gradient(d2, h, axis=0, edge_order=2)
 
 
+def _cap_time(windows: list[tuple[float, Budget]]) -> float:
+    """Time to cross the windows at their speed caps (no ramps): which parameter has
+    more room."""
+    return sum(length / bud.v_cap for length, bud in windows)
+
+
 def _same(a: Budget, b: Budget, tol: float = 0.005) -> bool:
     """Neighbours with the same budget merge (a straight transit is one window)."""
     return (abs(a.v_cap - b.v_cap) <= tol * max(a.v_cap, b.v_cap)
@@ -256,18 +262,22 @@ class Timer:
         """A run's profile, the parameter it runs along, and the azimuth carry after it.
 
         It is timed along the ball's arc length; where something other than the feed
-        caps the speed on a machine with rotary axes, it is timed along the axis path
-        (:class:`RunParameter`) too, and the quicker of the two is kept.  Along the
-        axis path the feed caps a speed that is not the ball's, and the cap follows
-        ``ds/dsigma`` window by window: where the feed alone binds, the ball's arc
-        length is as quick and cheaper to plan."""
+        caps the speed on a machine with rotary axes, and the axis path's windows
+        (:class:`RunParameter`) would take less time at their speed caps than the ball's
+        do, it is timed along the axis path too, and the quicker of the two is kept.
+        Along the axis path the feed caps a speed that is not the ball's, and the cap
+        follows ``ds/dsigma`` window by window: where the feed alone binds, the ball's
+        arc length is as quick and cheaper to plan."""
         param = RunParameter(geo.length_mm)
         windows, carry_out = self.run_windows(geo, carry, param)
         prof = plan_chain(windows, label)
         if self._weights is None or all(b.binding == "feed" for _, b in windows):
             return prof, param, carry_out
         axis_path = self.parameter(geo, carry)
-        other = plan_chain(self.run_windows(geo, carry, axis_path)[0], label)
+        other_windows = self.run_windows(geo, carry, axis_path)[0]
+        if _cap_time(other_windows) >= _cap_time(windows):
+            return prof, param, carry_out
+        other = plan_chain(other_windows, label)
         if other.duration_s < prof.duration_s:
             return other, axis_path, carry_out
         return prof, param, carry_out
