@@ -1,11 +1,12 @@
 """Timed trajectories: where the machine is at every moment of a layer program.
 
-Every run (dwell to dwell) is timed by ruckig along the arc length of the machine's
-axis path (:class:`RunParameter`; on a machine without rotary axes that is the ball's
-arc length), with limits from :mod:`~sdit_path.timing.limits`; at every static node the machine rests for the
-dwell; where a program steps over left-out segments (bar off) it repositions along
-straight lines, rest to rest.  The program's own first positioning move (from wherever
-the machine was) is not part of the trajectory: time 0 is the start of the first dwell.
+Every run (dwell to dwell) is timed by ruckig along the ball's arc length or, where
+that is quicker on a machine with rotary axes, along the arc length of the machine's
+axis path (:class:`RunParameter`), with limits from :mod:`~sdit_path.timing.limits`;
+at every static node the machine rests for the dwell; where a program steps over
+left-out segments (bar off) it repositions along straight lines, rest to rest.  The
+program's own first positioning move (from wherever the machine was) is not part of
+the trajectory: time 0 is the start of the first dwell.
 
 ``sample`` turns a timed layer into arrays at a fixed rate; ``to_csv`` into the
 trajectory file: ``t_s``, the ball centre in the table frame (``ball_x_mm`` ...), every
@@ -77,23 +78,21 @@ class RunParameter:
     It counts every linear axis in mm and every rotary axis at ``a_ref / A_r`` mm per
     rad (``a_ref`` the smallest linear acceleration limit, ``A_r`` the rotary axis'
     own), and is scaled to the length of the ball's path, so that windows of a given
-    length are as many along either.  On a machine without rotary axes it is the
-    ball's arc length ``s`` itself, and the map is the identity.  Where a table turns fast under a slow ball, the
+    length are as many along either.  The identity map (no ``s_of_sigma``) is the
+    ball's arc length ``s`` itself.  Where a table turns fast under a slow ball, the
     ball's arc length is a poor parameter: the rotary angle bends tightly along it, and
     its curvature terms (``q'' v^2``, ``q''' v^3``) eat the whole budget of constant
     path limits although the axis itself moves smoothly.  Along the axis path the
     dominant axis moves nearly linearly, and the same limits lose little.
 
-    ``length_mm`` is the parameter's length; :meth:`s` maps it to the ball's arc
+    ``length_mm`` is the length of both; :meth:`s` maps the parameter to the ball's arc
     length, :meth:`ds` is ``ds/dsigma`` (the ball's speed per unit parameter speed);
     both come from one quintic interpolant, whose third derivative is continuous."""
 
-    def __init__(self, length_mm: float, s_of_sigma: BSpline | None = None,
-                 ball_length_mm: float | None = None):
+    def __init__(self, length_mm: float, s_of_sigma: BSpline | None = None):
         self.length_mm = float(length_mm)
         self._s = s_of_sigma
         self._ds = None if s_of_sigma is None else s_of_sigma.derivative()
-        self._ball = self.length_mm if ball_length_mm is None else float(ball_length_mm)
 
     @property
     def identity(self) -> bool:
@@ -103,7 +102,7 @@ class RunParameter:
         """The ball's arc length at parameter values ``sigma``."""
         if self._s is None:
             return sigma
-        return np.clip(self._s(np.clip(sigma, 0.0, self.length_mm)), 0.0, self._ball)
+        return np.clip(self._s(np.clip(sigma, 0.0, self.length_mm)), 0.0, self.length_mm)
 
     def ds(self, sigma: np.ndarray) -> np.ndarray:
         """``ds/dsigma`` at parameter values ``sigma``."""
@@ -214,7 +213,7 @@ class Timer:
                            axis=1)
         sigma = np.concatenate([[0.0], np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(s))])
         sigma *= geo.length_mm / sigma[-1]  # as long as the ball's path: same windows
-        return RunParameter(geo.length_mm, make_interp_spline(sigma, s, k=5), geo.length_mm)
+        return RunParameter(geo.length_mm, make_interp_spline(sigma, s, k=5))
 
     def run_windows(self, geo: RunGeometry, carry: float | None,
                     param: RunParameter | None = None, step_mm: float = 0.1,
