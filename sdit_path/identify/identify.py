@@ -65,6 +65,7 @@ class Gram:
 #: sensitivity, after prior scaling) could not be determined anyway.
 STRUCTURAL = 1e-9
 
+
 def _nuisance_columns(u: np.ndarray) -> np.ndarray:
     # centring: the pivot ball sits at pivot + d, the bar reads -u.d; bar length: +1
     return np.column_stack([-u, np.ones(len(u))])

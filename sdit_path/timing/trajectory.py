@@ -386,7 +386,7 @@ def sample(timed: TimedLayer, timer: Timer, rate_hz: float = 1000.0) -> Samples:
             phase[sel] = "reposition"
             continue
         geo = item.geometry
-        speed[sel] = v if item.param.identity else item.param.ds(s) * v
+        speed[sel] = item.param.ds(s) * v  # the ball's speed (exactly v along s)
         s = item.param.s(s)
         u = geo.u(s)
         p = geo.curve.evaluate(u)
