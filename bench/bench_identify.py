@@ -25,9 +25,9 @@ from sdit_path.errormodel.errorset import ErrorSet
 from sdit_path.errormodel.model import ModelOptions, build_model, prior_scale
 from sdit_path.identify.identify import _schur, experiment_gram, identify
 from sdit_path.output import write_tree
-from sdit_path.pipeline import plan, trajectory_files
+from sdit_path.pipeline import plan
 from sdit_path.planfiles import load_plan
-from sdit_path.report.manifest import manifest_text
+from sdit_path.report.manifest import plan_directory_files
 from sdit_path.sim.simulate import simulate_trace
 
 NOISE_UM = 0.2
@@ -42,11 +42,7 @@ def main() -> None:
     cfg = load_config()
     result = plan(cfg)
     with tempfile.TemporaryDirectory() as tmp:
-        files = {p.file: p.text for p in result.programs}
-        files.update(trajectory_files(result))
-        files["plan.json"] = manifest_text(result)
-        files["config.toml"] = cfg.text
-        write_tree(Path(tmp) / "plan", files)
+        write_tree(Path(tmp) / "plan", plan_directory_files(result))
         pf = load_plan(Path(tmp) / "plan")
         options = ModelOptions(linear_order=1, squareness=True, location=False)
         model = build_model(cfg.machine, pf.tested_travel(), options)

@@ -25,6 +25,49 @@ def _fail(exc: SditError) -> None:
     sys.exit(exc.exit_code)
 
 
+class _Steps:
+    """Progress of a long command on stderr: a bar (or, with no known total, a spinner)
+    on a terminal, one line per stage otherwise (a log file, a CI job, a DNC server's
+    console), nothing with --quiet."""
+
+    def __init__(self, quiet: bool, total: int | None, first: str):
+        self.console = Console(stderr=True, quiet=quiet)
+        self.quiet = quiet
+        self.total = total
+        self.done = 0
+        self.live = None
+        if not quiet and self.console.is_terminal:
+            if total:
+                self.live = Progress(TextColumn("{task.description}"), BarColumn(),
+                                     TimeElapsedColumn(), console=self.console, transient=True)
+                self.task = self.live.add_task(first, total=total)
+            else:
+                self.live = self.console.status(first, spinner="dots")
+        elif not quiet:
+            click.echo(f"sdit-path: {first}", err=True)
+
+    def __enter__(self):
+        if self.live is not None:
+            self.live.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        if self.live is not None:
+            self.live.__exit__(*exc)
+        return False
+
+    def __call__(self, message: str) -> None:
+        self.done += 1
+        if self.live is not None:
+            if self.total:
+                self.live.update(self.task, advance=1, description=message)
+            else:
+                self.live.update(message)
+        elif not self.quiet:
+            count = f"[{min(self.done, self.total)}/{self.total}] " if self.total else ""
+            click.echo(f"sdit-path: {count}{message}", err=True)
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="sdit-path")
 def main() -> None:
@@ -37,7 +80,8 @@ def main() -> None:
 @click.argument("config", required=False, type=click.Path(dir_okay=False))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Output directory: DIR/<controller>/ programs and DIR/plan.json.")
-@click.option("--force", is_flag=True, help="Replace the content of a non-empty DIR.")
+@click.option("--force", is_flag=True,
+              help="Replace DIR if it holds only an earlier output of this command.")
 @click.option("--skip-infeasible", is_flag=True,
               help="Leave out segments that are unreachable or collide (plan.json says why).")
 @click.option("--quiet", "-q", is_flag=True, help="No progress and no summary.")
@@ -48,25 +92,18 @@ def plan_command(config: str | None, out_dir: str, force: bool, skip_infeasible:
     from .config import load_config
     from .nc.registry import get_postprocessor
     from .nc.words import count_blocks
-    from .output import write_tree
-    from .pipeline import plan, step_count, trajectory_files
-    from .report.manifest import manifest_text
+    from .output import check_output, write_tree
+    from .pipeline import plan, step_count
+    from .report.manifest import plan_directory_files
 
-    console = Console(stderr=True, quiet=quiet)
     try:
         cfg = load_config(config)
-        with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
-                      console=console, transient=True,
-                      disable=quiet or not console.is_terminal) as bar:
-            task = bar.add_task("planning", total=step_count(cfg))
-            result = plan(cfg, on_step=lambda msg: bar.update(task, advance=1, description=msg),
-                          skip_infeasible=skip_infeasible)
-            files = {p.file: p.text for p in result.programs}
-            files.update(trajectory_files(
-                result, on_step=lambda msg: bar.update(task, advance=1, description=msg)))
-        files["plan.json"] = manifest_text(result)
-        files["config.toml"] = cfg.text  # later stages rebuild the machine from it
-        out = write_tree(out_dir, files, force=force)
+        protect = (cfg.source,) if config else ()
+        check_output(out_dir, force, "plan", protect)
+        with _Steps(quiet, step_count(cfg), "planning") as step:
+            result = plan(cfg, on_step=step, skip_infeasible=skip_infeasible)
+            files = plan_directory_files(result, on_step=step)
+            out = write_tree(out_dir, files, force=force, command="plan", protect=protect)
     except SditError as exc:
         _fail(exc)
         return
@@ -101,7 +138,8 @@ def plan_command(config: str | None, out_dir: str, force: bool, skip_infeasible:
               help="Output directory for the pictures (three PNGs per layer).")
 @click.option("--feed", "feed", type=float, default=None,
               help="Preview at this feed (mm/min) instead of the config's.")
-@click.option("--force", is_flag=True, help="Replace the content of a non-empty DIR.")
+@click.option("--force", is_flag=True,
+              help="Replace DIR if it holds only an earlier output of this command.")
 @click.option("--skip-infeasible", is_flag=True, help="As for plan.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress.")
 def preview_command(config: str | None, out_dir: str, feed: float | None, force: bool,
@@ -112,25 +150,23 @@ def preview_command(config: str | None, out_dir: str, feed: float | None, force:
 
     from .config import load_config
     from .errors import ConfigError
-    from .output import write_tree
+    from .output import check_output, write_tree
     from .pipeline import plan, step_count
     from .report.preview import preview_files
 
-    console = Console(stderr=True, quiet=quiet)
     try:
         cfg = load_config(config)
+        protect = (cfg.source,) if config else ()
+        check_output(out_dir, force, "preview", protect)
         if feed is not None:
-            if not feed > 0:
-                raise ConfigError("--feed", f"expected a feed > 0 mm/min, got {feed:g}")
+            if not 0 < feed <= 1e6:
+                raise ConfigError("--feed", f"expected a feed in (0, 1e6] mm/min, got {feed:g}")
             cfg = dataclasses.replace(cfg, test=dataclasses.replace(cfg.test, feed_mm_per_min=feed))
-        with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
-                      console=console, transient=True,
-                      disable=quiet or not console.is_terminal) as bar:
-            task = bar.add_task("planning", total=step_count(cfg) + len(cfg.test.track_elevations_deg))
-            step = lambda msg: bar.update(task, advance=1, description=msg)  # noqa: E731
+        with _Steps(quiet, step_count(cfg) + len(cfg.test.track_elevations_deg),
+                    "planning") as step:
             result = plan(cfg, on_step=step, skip_infeasible=skip_infeasible)
             files = preview_files(result, on_step=step)
-        out = write_tree(out_dir, files, force=force)
+            out = write_tree(out_dir, files, force=force, command="preview", protect=protect)
     except SditError as exc:
         _fail(exc)
         return
@@ -336,7 +372,6 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
     from .planfiles import load_plan
     from .sim.traceio import read_trace
 
-    console = Console(stderr=True, quiet=quiet)
     try:
         plan = load_plan(plan_dir)
         if program not in plan.program_names:
@@ -344,13 +379,10 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
                                         f"{', '.join(plan.program_names)}")
         model = load_error_set(model_file) if model_file else None
         trace = read_trace(measured)
-        with console.status("diagnosing", spinner="dots") if console.is_terminal and not quiet \
-                else _Null() as status:
+        with _Steps(quiet, None, "diagnosing") as step:
             ctx = build_context(plan, program)
             try:
-                result = diagnose(plan, program, trace, model,
-                                  progress=(lambda m: status.update(m)) if status else None,
-                                  ctx=ctx)
+                result = diagnose(plan, program, trace, model, progress=step, ctx=ctx)
             except AlignmentError as exc:
                 raise AlignmentError(f"{measured}: {exc}") from None
         report = to_json(result)
@@ -364,11 +396,3 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
         return
     if not quiet:
         click.echo(summary_text(result), nl=False)
-
-
-class _Null:
-    def __enter__(self):
-        return None
-
-    def __exit__(self, *exc):
-        return False

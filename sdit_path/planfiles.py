@@ -1,15 +1,25 @@
 """Reading a plan directory written by ``sdit-path plan``: its config, manifest and
-trajectories (what the simulator, the identification and the diagnosis start from)."""
+trajectories (what the simulator, the identification and the diagnosis start from).
+
+A plan directory is checked before anything is read from it: ``plan.json`` must be
+the manifest of a plan, every file it names must lie inside the directory, and every
+file must still have the sha256 fingerprint it was written with, so that an edited
+config, a swapped trajectory or a hand-edited program is refused by name instead of
+being read as the plan.
+"""
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 from .config import Config, parse_config
 from .errors import ConfigError
 from .timing.trajectory import Samples, read_csv_file
+
+FORMAT = "sdit-path/plan"
 
 
 @dataclass(frozen=True, slots=True)
@@ -30,28 +40,141 @@ class PlanFiles:
         if not entry.get("trajectory"):
             raise ConfigError(str(self.directory), f"{program}: no trajectory was exported "
                                                    f"(timing.export_trajectories = false)")
-        path = self.directory / entry["trajectory"]
+        path = _inside(self.directory, entry["trajectory"], "programs[].trajectory")
         if not path.is_file():
             raise ConfigError(str(path), "trajectory file missing from the plan directory")
-        try:
-            return read_csv_file(path)
-        except FileNotFoundError:
-            raise ConfigError(str(path), "trajectory file missing from the plan directory") from None
+        _check_fingerprint(self.directory, self.manifest, entry["trajectory"])
+        samples = read_csv_file(path)
+        _check_samples(samples, str(path), self.config)
+        return samples
 
     def tested_travel(self) -> dict[str, tuple[float, float]]:
         return {k: (v[0], v[1]) for k, v in self.manifest.get("tested_travel", {}).items()}
 
 
+def _inside(directory: Path, rel, field: str) -> Path:
+    """``directory / rel`` for a relative path that stays inside ``directory``."""
+    where = str(directory / "plan.json")
+    if not isinstance(rel, str) or not rel:
+        raise ConfigError(where, f"{field}: expected a file name inside the plan directory, "
+                                 f"got {rel!r}")
+    p = PurePosixPath(rel)
+    if p.is_absolute() or ".." in p.parts or "\\" in rel or ":" in p.parts[0]:
+        raise ConfigError(where, f"{field}: {rel!r} points outside the plan directory; refused")
+    path = directory / p
+    try:
+        if not path.resolve().is_relative_to(directory.resolve()):
+            raise ConfigError(where, f"{field}: {rel!r} leads outside the plan directory "
+                                     f"(symbolic link); refused")
+    except OSError:
+        pass
+    return path
+
+
+def _check_fingerprint(directory: Path, manifest: dict, rel: str) -> None:
+    """The file's sha256 must be the one plan.json recorded (plans written before
+    fingerprints existed have no ``files`` table and are read as they are)."""
+    files = manifest.get("files")
+    if files is None:
+        return
+    expected = files.get(rel)
+    path = directory / rel
+    if expected is None:
+        raise ConfigError(str(path), "not listed in plan.json's fingerprints; the plan "
+                                     "directory was changed after planning")
+    digest = hashlib.sha256()
+    try:
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                digest.update(block)
+    except OSError as exc:
+        raise ConfigError(str(path), f"cannot read: {exc.strerror}") from None
+    if digest.hexdigest() != expected:
+        raise ConfigError(str(path), "changed since it was planned (its sha256 differs from "
+                                     "plan.json's); plan again instead of editing a plan")
+
+
+def _check_samples(s: Samples, source: str, config: Config) -> None:
+    import numpy as np
+
+    n = len(s.t_s)
+    if n < 2:
+        raise ConfigError(source, f"trajectory has {n} sample(s); expected a timed program")
+    numbers = np.column_stack([s.t_s, s.ball_mm, s.axes, s.speed_mm_per_s])
+    if not np.all(np.isfinite(numbers)):
+        row = int(np.argwhere(~np.isfinite(numbers))[0, 0])
+        raise ConfigError(source, f"data row {row + 1}: not a finite number; the trajectory "
+                                  f"is damaged")
+    if not np.all(np.diff(s.t_s) > 0):
+        row = int(np.argmax(~(np.diff(s.t_s) > 0))) + 2
+        raise ConfigError(source, f"data row {row}: time does not increase; the trajectory "
+                                  f"is damaged")
+    expected = tuple(a.name for a in config.machine.axes)
+    if tuple(sorted(s.axis_names)) != tuple(sorted(expected)):
+        raise ConfigError(source, f"axis columns {', '.join(s.axis_names) or 'none'}; the "
+                                  f"plan's machine has {', '.join(expected)}")
+
+
+def _manifest_shape(m, where: str) -> dict:
+    if not isinstance(m, dict) or m.get("format") != FORMAT:
+        raise ConfigError(where, f"not a plan manifest (expected a JSON object with "
+                                 f"\"format\": \"{FORMAT}\")")
+    programs = m.get("programs")
+    if not isinstance(programs, list) or not all(
+            isinstance(p, dict) and isinstance(p.get("name"), str)
+            and (p.get("trajectory") is None or isinstance(p.get("trajectory"), str))
+            for p in programs):
+        raise ConfigError(where, "programs: expected a list of {name, trajectory, ...} objects")
+    if not programs:
+        raise ConfigError(where, "programs: the plan holds no program")
+    travel = m.get("tested_travel")
+    if not isinstance(travel, dict) or not travel or not all(
+            isinstance(v, list) and len(v) == 2
+            and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+            and v[0] <= v[1] for v in travel.values()):
+        raise ConfigError(where, "tested_travel: expected {axis: [min, max]} for every "
+                                 "linear axis")
+    files = m.get("files")
+    if files is not None and not (isinstance(files, dict) and all(
+            isinstance(k, str) and isinstance(v, str) for k, v in files.items())):
+        raise ConfigError(where, "files: expected {relative path: sha256}")
+    return m
+
+
 def load_plan(directory: str | Path) -> PlanFiles:
     d = Path(directory)
+    where = str(d / "plan.json")
+    if not d.is_dir():
+        raise ConfigError(str(d), "not a directory; expected a folder written by sdit-path plan")
     try:
-        manifest = json.loads((d / "plan.json").read_text(encoding="utf-8"))
+        manifest = json.loads((d / "plan.json").read_bytes().decode("utf-8"))
     except FileNotFoundError:
         raise ConfigError(str(d), "not a plan directory (no plan.json); run sdit-path plan first") from None
+    except IsADirectoryError:
+        raise ConfigError(where, "is a directory; expected the plan's manifest") from None
+    except OSError as exc:
+        raise ConfigError(where, f"cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(where, "not UTF-8 text; expected the plan's manifest") from None
     except json.JSONDecodeError as exc:
-        raise ConfigError(str(d / "plan.json"), f"line {exc.lineno}: not valid JSON") from None
+        raise ConfigError(where, f"line {exc.lineno}: not valid JSON") from None
+    _manifest_shape(manifest, where)
+    cfg_path = d / "config.toml"
     try:
-        text = (d / "config.toml").read_text(encoding="utf-8")
+        raw = cfg_path.read_bytes()
     except FileNotFoundError:
         raise ConfigError(str(d), "config.toml missing from the plan directory") from None
-    return PlanFiles(d, parse_config(text, str(d / "config.toml")), manifest)
+    except OSError as exc:
+        raise ConfigError(str(cfg_path), f"cannot read: {exc.strerror}") from None
+    if manifest.get("files") is not None:
+        _check_fingerprint(d, manifest, "config.toml")
+    else:
+        recorded = (manifest.get("config") or {}).get("sha256")
+        if isinstance(recorded, str) and hashlib.sha256(raw).hexdigest() != recorded:
+            raise ConfigError(str(cfg_path), "changed since it was planned (its sha256 differs "
+                                             "from plan.json's); plan again instead")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ConfigError(str(cfg_path), "not UTF-8 text") from None
+    return PlanFiles(d, parse_config(text, str(cfg_path)), manifest)

@@ -58,18 +58,74 @@ def test_same_input_gives_byte_identical_output(planned, tmp_path):
     assert tree(again) == tree(planned)
 
 
-def test_refuses_non_empty_dir_and_force_replaces(tmp_path):
+def test_refuses_non_empty_dir_and_force_never_deletes_foreign_files(tmp_path, planned):
     out = tmp_path / "out"
-    out.mkdir()
+    (out / "sub").mkdir(parents=True)
     (out / "keep.txt").write_text("mine")
+    (out / "sub" / "data.csv").write_text("1,2")
     r = run("plan", "--out", str(out))
     assert r.returncode == 5
     assert "not empty; pass --force" in r.stderr and "Traceback" not in r.stderr
-    assert tree(out) == {"keep.txt": b"mine"}
     r = run("plan", "--out", str(out), "--force", "-q")
-    assert r.returncode == 0, r.stderr
-    assert "keep.txt" not in tree(out) and "plan.json" in tree(out)
+    assert r.returncode == 5 and "holds keep.txt, which sdit-path plan did not write" in r.stderr
+    assert tree(out) == {"keep.txt": b"mine", "sub/data.csv": b"1,2"}
+    # an earlier plan output is replaced as a whole, with no hidden leftovers
+    (out / "keep.txt").unlink()
+    (out / "sub" / "data.csv").unlink()
+    (out / "sub").rmdir()
+    assert run("plan", "--out", str(out), "-q").returncode == 0
+    assert run("plan", "--out", str(out), "--force", "-q").returncode == 0
+    assert tree(out) == tree(planned)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out.")]
+    # a user's file added to a plan output is not deleted either
+    (out / "notes.txt").write_text("mine")
+    r = run("plan", "--out", str(out), "--force", "-q")
+    assert r.returncode == 5 and "holds notes.txt" in r.stderr
+    assert (out / "notes.txt").read_text() == "mine"
+    # preview refuses to replace a plan
+    (out / "notes.txt").unlink()
+    r = run("preview", "--out", str(out), "--force", "-q")
+    assert r.returncode == 5 and "which sdit-path preview did not write" in r.stderr
+    assert (out / "plan.json").is_file()
+
+
+def test_force_never_replaces_the_working_folder_or_the_configs(tmp_path):
+    cfg = tmp_path / "cfgdir" / "m.toml"
+    cfg.parent.mkdir()
+    cfg.write_text(sample_path("vmc_3axis.toml").read_text())
+    for out, cwd in ((".", tmp_path), ("..", tmp_path / "cfgdir"), (str(cfg.parent), tmp_path)):
+        r = run("plan", str(cfg), "--out", out, "--force", "-q", cwd=cwd)
+        assert r.returncode == 5 and "Traceback" not in r.stderr, r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1
+    assert cfg.is_file()
+
+
+def test_outputs_respect_the_umask(tmp_path):
+    import os
+    import stat
+
+    script = ("import os, sys; os.umask(0o022); from sdit_path.cli import main; "
+              "sys.argv = ['sdit-path'] + sys.argv[1:]; main()")
+    plan_dir = tmp_path / "p"
+    r = subprocess.run([sys.executable, "-c", script, "plan", "--out", str(plan_dir), "-q"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([sys.executable, "-c", script, "simulate", "--plan", str(plan_dir),
+                        "--program", "SDIT_E", "--errors", "paper_table2", "--out",
+                        str(tmp_path / "t.csv")], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    for p in [plan_dir, *plan_dir.rglob("*"), tmp_path / "t.csv"]:
+        mode = stat.S_IMODE(os.stat(p).st_mode)
+        assert mode == (0o755 if p.is_dir() else 0o644), (p, oct(mode))
+
+
+def test_no_terminal_prints_a_line_per_stage(tmp_path):
+    r = run("plan", "--out", str(tmp_path / "p"))
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert lines[0] == "sdit-path: planning"
+    assert any("[1/" in ln and "layer A planned and checked" in ln for ln in lines)
+    assert len(lines) >= 10
 
 
 @pytest.mark.parametrize("key,value,code,expected", [
@@ -94,7 +150,7 @@ def test_unreachable_plan_names_segment_axis_and_overshoot(tmp_path):
     cfg = tmp_path / "far.toml"
     cfg.write_text(edit(sample_path("vmc_3axis.toml").read_text(), "pivot_mm", "[300.0, 0.0, 50.0]"))
     out = tmp_path / "o"
-    r = run("plan", str(cfg), "--out", str(out))
+    r = run("plan", str(cfg), "--out", str(out), "-q")
     assert r.returncode == 3 and "Traceback" not in r.stderr
     lines = r.stderr.splitlines()
     assert lines[0].startswith("sdit-path: error: ") and "infeasible piece(s): A1-1" in lines[0]

@@ -27,7 +27,10 @@ def _deg(rad: float) -> float:
     return round(math.degrees(rad), 9) + 0.0
 
 
-def manifest(result: PlanResult) -> dict:
+def manifest(result: PlanResult, files: dict[str, str | bytes] | None = None) -> dict:
+    """The manifest of ``result``; ``files`` (relative path -> content) are the other
+    files of the plan directory, each fingerprinted (sha256) under ``files``, so that a
+    later stage can refuse a plan whose files were edited or swapped."""
     cfg, hemi = result.config, result.hemisphere
     controllers = cfg.post.controllers
     dev: dict[str, dict[str, float]] = {}
@@ -100,9 +103,9 @@ def manifest(result: PlanResult) -> dict:
             "max_radial_deviation_um": round(prog.built.max_deviation_mm * 1e3, 6),
             "cycle_time_s": round(timed[prog.layer].duration_s, 4) if prog.layer in timed else None,
             "motion_time_s": round(timed[prog.layer].motion_s, 4) if prog.layer in timed else None,
-            "trajectory": (f"trajectories/{prog.built.program.name}.csv"
+            "trajectory": (f"trajectories/{prog.built.program.name}.csv.gz"
                            if cfg.timing.export_trajectories and prog.layer in timed else None),
-            "sha256": hashlib.sha256(text.encode("ascii")).hexdigest(),
+            "sha256": hashlib.sha256(text.encode("utf-8")).hexdigest(),
         })
     limits = {"sinumerik840d": cfg.post.spline_tolerance_um, "linuxcnc": cfg.post.chord_tolerance_um}
     summary = {c: {"max_radial_deviation_um": round(max(
@@ -141,7 +144,14 @@ def manifest(result: PlanResult) -> dict:
         "programs": programs,
         "summary": summary,
         "tested_travel": _tested_travel(result),
+        "files": {rel: _sha256(content) for rel, content in sorted((files or {}).items())
+                  if rel != "plan.json"},
     }
+
+
+def _sha256(content: str | bytes) -> str:
+    data = content if isinstance(content, bytes) else content.encode("utf-8")
+    return hashlib.sha256(data).hexdigest()
 
 
 def _tested_travel(result: PlanResult) -> dict[str, list[float]]:
@@ -160,5 +170,24 @@ def _tested_travel(result: PlanResult) -> dict[str, list[float]]:
             for i in kin.linear}
 
 
-def manifest_text(result: PlanResult) -> str:
-    return json.dumps(manifest(result), indent=2) + "\n"
+def manifest_text(result: PlanResult, files: dict[str, str | bytes] | None = None) -> str:
+    return json.dumps(manifest(result, files), indent=2, ensure_ascii=False) + "\n"
+
+
+def plan_directory_files(result: PlanResult, on_step=None) -> dict[str, str | bytes]:
+    """Every file of a plan directory (relative path -> content): the programs, the
+    trajectories (gzip-compressed CSV: ``pandas.read_csv`` and ``numpy.loadtxt`` read
+    them as they are), the config the later stages rebuild the machine from, and plan.json
+    with the fingerprints of all the others."""
+    from ..pipeline import trajectory_files
+
+    import gzip
+
+    files: dict[str, str | bytes] = {p.file: p.text for p in result.programs}
+    for rel, text in trajectory_files(result, on_step=on_step).items():
+        # gzip level 1: a quarter of the CSV's size in a third of a second per layer;
+        # mtime 0 and no file name keep the bytes reproducible
+        files[rel + ".gz"] = gzip.compress(text.encode("ascii"), compresslevel=1, mtime=0)
+    files["config.toml"] = result.config.text
+    files["plan.json"] = manifest_text(result, files)
+    return files

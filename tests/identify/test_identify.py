@@ -12,9 +12,8 @@ import pytest
 from sdit_path.errormodel.errorset import ErrorSet, load_error_set
 from sdit_path.errormodel.model import ModelOptions, build_model, prior_scale, values_vector
 from sdit_path.identify.identify import _schur, experiment_gram, identify
-from sdit_path.pipeline import trajectory_files
 from sdit_path.planfiles import load_plan
-from sdit_path.report.manifest import manifest_text
+from sdit_path.report.manifest import plan_directory_files
 from sdit_path.output import write_tree
 from sdit_path.sim.simulate import simulate_trace
 
@@ -22,11 +21,7 @@ from sdit_path.sim.simulate import simulate_trace
 @pytest.fixture(scope="module")
 def plan_dir(tmp_path_factory, default_plan):
     out = tmp_path_factory.mktemp("idplan") / "plan"
-    files = {p.file: p.text for p in default_plan.programs}
-    files.update(trajectory_files(default_plan))
-    files["plan.json"] = manifest_text(default_plan)
-    files["config.toml"] = default_plan.config.text
-    write_tree(out, files)
+    write_tree(out, plan_directory_files(default_plan))
     return load_plan(out)
 
 
