@@ -17,14 +17,26 @@ from sdit_path.nc.program import (Comment, Dwell, LinearMove, PolylineMove, Prog
 from sdit_path.nc.text import neutralise
 from sdit_path.nc.words import fixed, frame, trimmed, words, xyz
 
-_SPECIAL = re.compile(r"^\s*(msg|debug|print|log|probe|abort)", re.IGNORECASE)
+#: Comments LinuxCNC acts on (rs274ngc: MSG, DEBUG, PRINT, LOG..., PROBEOPEN/CLOSE,
+#: ABORT; the Python plug-in: PY, PYRUN, PYRELOAD; the AXIS GUI: AXIS,...): the
+#: interpreter skips leading white space and compares lower case.  Any comment whose
+#: first word is followed by a comma is treated the same, so that a keyword added in a
+#: later release is neutralised too.
+_SPECIAL = re.compile(r"^\s*(msg|debug|print|log|probe|abort|py|axis|remap|[a-z0-9_]+\s*,)",
+                      re.IGNORECASE)
 _OFFSETS = {"G54", "G55", "G56", "G57", "G58", "G59"}
+#: rs274ngc refuses lines of LINELEN (255) characters less its terminators; keep well below
+MAX_LINE_CHARS = 250
+#: user text in one comment is cut to this length (the line keeps its parentheses)
+MAX_COMMENT_CHARS = 200
 
 
 def _comment(text: str) -> str:
     text = neutralise(text, forbidden="()")
     if _SPECIAL.match(text):
         text = "- " + text
+    if len(text) > MAX_COMMENT_CHARS:
+        text = text[: MAX_COMMENT_CHARS - 3].rstrip() + "..."
     return text
 
 
@@ -89,6 +101,9 @@ class LinuxCNC:
         for lineno, raw in enumerate(lines, start=1):
             if any(ord(ch) < 32 or ord(ch) > 126 for ch in raw):
                 problems.append(f"line {lineno}: control or non-ASCII character")
+            if len(raw) > MAX_LINE_CHARS:
+                problems.append(f"line {lineno}: {len(raw)} characters; LinuxCNC reads at most "
+                                f"{MAX_LINE_CHARS}")
             stripped = raw.strip()
             if stripped == "%":
                 if lineno not in (1, len(lines)):
@@ -139,6 +154,8 @@ class LinuxCNC:
                     gcodes.append(v)
                 else:
                     values[a] = number
+                if a == "F" and not number > 0:
+                    problems.append(f"line {lineno}: F{v}; a feed must be > 0")
             gnums = [float(g) for g in gcodes]
             if 21.0 in gnums:
                 seen_g21 = True

@@ -26,6 +26,17 @@ _MOTION = {"G0", "G00", "G1", "G01", "G2", "G02", "G3", "G03", "CIP", "CT", "ASP
            "CSPLINE", "POLY", "BSPLINE"}
 
 
+#: user text in one comment is cut to this length
+MAX_COMMENT_CHARS = 200
+
+
+def _comment(text: str) -> str:
+    text = neutralise(text)
+    if len(text) > MAX_COMMENT_CHARS:
+        text = text[: MAX_COMMENT_CHARS - 3].rstrip() + "..."
+    return text
+
+
 class Sinumerik840D:
     name = "sinumerik840d"
     title = "SINUMERIK 840D sl"
@@ -41,17 +52,17 @@ class Sinumerik840D:
         body: list[str] = []
         for item in program.items:
             if isinstance(item, Comment):
-                body.append(f"; {neutralise(item.text)}")
+                body.append(f"; {_comment(item.text)}")
             elif isinstance(item, LinearMove):
                 rot = "".join(f" {n}{fixed(v, d)}" for n, v in item.rotary_deg)
                 body.append(f"G1 {xyz(item.point_mm, d)}{rot} F{trimmed(item.feed_mm_per_min, 3)}")
             elif isinstance(item, Dwell):
-                body.append(f"; dwell at node {neutralise(item.node_id)}")
+                body.append(f"; dwell at node {_comment(item.node_id)}")
                 body.append(f"G4 F{trimmed(item.seconds, 3)}")
             elif isinstance(item, SplineMove):
                 body.extend(self._spline(item, d))
             elif isinstance(item, ProgramStop):
-                body.append(f"; STOP: {neutralise(item.message)}")
+                body.append(f"; STOP: {_comment(item.message)}")
                 body.append("M0")
             elif isinstance(item, PolylineMove):
                 raise TypeError("SINUMERIK 840D programs carry splines, not chords")
@@ -60,7 +71,7 @@ class Sinumerik840D:
         if program.frame == "traori":
             preamble += ["TRAORI", "ORIWKS", "ORIAXES"]
             footer.append("TRAFOOF")
-        header = [neutralise(line) for line in program.header]
+        header = [_comment(line) for line in program.header]
         return frame("sinumerik840d/program.mpf.j2", name=program.name, header=header,
                      preamble=preamble, body=body, footer=footer)
 
@@ -72,7 +83,7 @@ class Sinumerik840D:
         out = []
         for j in range(1, len(curve.control_points_mm)):
             if j in labels:
-                out.append(f"; {neutralise(labels[j])}")
+                out.append(f"; {_comment(labels[j])}")
             words_ = xyz(curve.control_points_mm[j], d)
             words_ += "".join(f" {n}{fixed(v[j], d)}" for n, v in move.rotary_deg)
             if curve.weights is not None:
@@ -137,6 +148,8 @@ class Sinumerik840D:
                     else:
                         if not math.isfinite(values[a]):
                             problems.append(f"line {lineno}: {a} is not finite")
+                        elif a == "F" and not values[a] > 0:
+                            problems.append(f"line {lineno}: F{v}; a feed or dwell must be > 0")
             if "G94" in addresses:
                 seen_g94 = True
             if "G71" in addresses:

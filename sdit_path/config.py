@@ -234,6 +234,20 @@ class Config:
 
 def _line_of(text: str, dotted: str) -> int | None:
     """Best-effort line number (1-based) of a dotted key in TOML text."""
+    m = re.fullmatch(r"(.+)\[(\d+)\](?:\.(.+))?", dotted)
+    if m:  # an array of tables: the k-th [[table]] header, then the key below it
+        table, k, key = m.group(1), int(m.group(2)), m.group(3)
+        lines = text.splitlines()
+        starts = [i for i, raw in enumerate(lines)
+                  if re.match(rf"^\s*\[\[\s*{re.escape(table)}\s*\]\]", raw)]
+        if k >= len(starts):
+            return None
+        end = next((i for i in range(starts[k] + 1, len(lines))
+                    if re.match(r"^\s*\[", lines[i])), len(lines))
+        for i in range(starts[k] + 1, end):
+            if key and re.match(rf"^\s*{re.escape(key)}\s*=", lines[i]):
+                return i + 1
+        return starts[k] + 1
     parts = dotted.split(".")
     table: list[str] = []
     header = re.compile(r"^\s*\[\s*([^\]]+?)\s*\]\s*(#.*)?$")
@@ -264,9 +278,10 @@ class _Reader:
         self.text = text
 
     def fail(self, key: str, message: str) -> ConfigError:
-        line = _line_of(self.text, key) if key else None
+        line = _line_of(self.text, key) if key and len(key) < 200 else None
         where = f"{self.source}:{line}" if line else self.source
-        return ConfigError(where, f"{key}: {message}" if key else message)
+        shown = key if len(key) <= 80 else key[:77] + "..."
+        return ConfigError(where, f"{shown}: {message}" if key else message)
 
     def table(self, data: dict, key: str, known: tuple[str, ...], required: bool = True) -> dict:
         value = data.get(key.rsplit(".", 1)[-1])
@@ -326,11 +341,15 @@ class _Reader:
         if not isinstance(value, str):
             raise self.fail(key, f"expected a string, got {_describe(value)}")
         if choices is not None and value not in choices:
-            raise self.fail(key, f"expected one of {', '.join(choices)}, got {value!r}")
+            raise self.fail(key, f"expected one of {', '.join(choices)}, got {_short(value)}")
+        if len(value) > 1000:
+            raise self.fail(key, f"expected at most 1000 characters, got {len(value)}")
         return value
 
     def vector(self, data: dict, key: str, length: int, default: tuple | None = None,
-               unit: str = "") -> tuple[float, ...]:
+               unit: str = "", bound: float = 1e4) -> tuple[float, ...]:
+        """``length`` finite numbers, each within +-``bound`` (a physical plausibility
+        limit, 10 m by default: nothing on a machine tool lies further away)."""
         name = key.rsplit(".", 1)[-1]
         if name not in data:
             if default is None:
@@ -344,6 +363,9 @@ class _Reader:
         out = tuple(float(v) for v in value)
         if not all(math.isfinite(v) for v in out):
             raise self.fail(key, f"expected finite numbers, got {list(out)}")
+        if any(abs(v) > bound for v in out):
+            raise self.fail(key, f"expected values within +-{bound:g}{_unit(unit)} (a plausible "
+                                 f"machine), got {[float(f'{v:.6g}') for v in out]}")
         return out
 
     def numbers(self, data: dict, key: str, default: tuple, unit: str = "") -> tuple[float, ...]:
@@ -355,7 +377,10 @@ class _Reader:
                 or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)):
             raise self.fail(key, f"expected a non-empty list of numbers{_unit(unit)}, "
                                  f"got {_describe(value)}")
-        return tuple(float(v) for v in value)
+        out = tuple(float(v) for v in value)
+        if not all(math.isfinite(v) for v in out):
+            raise self.fail(key, f"expected finite numbers, got {list(out)}")
+        return out
 
     def boolean(self, data: dict, key: str, default: bool) -> bool:
         name = key.rsplit(".", 1)[-1]
@@ -380,6 +405,11 @@ def _unit(unit: str) -> str:
     return f" in {unit}" if unit else ""
 
 
+def _short(text: str, limit: int = 60) -> str:
+    """repr of a user's string, cut so that an error line stays one readable line."""
+    return repr(text) if len(text) <= limit else repr(text[:limit]) + f"... ({len(text)} chars)"
+
+
 def _describe(value: Any) -> str:
     if isinstance(value, dict):
         return "a table"
@@ -388,8 +418,8 @@ def _describe(value: Any) -> str:
     if isinstance(value, bool):
         return f"boolean {str(value).lower()}"
     if isinstance(value, str):
-        return f"string {value!r}"
-    return f"{type(value).__name__} {value!r}"
+        return f"string {_short(value)}"
+    return f"{type(value).__name__} {_short(repr(value))}"
 
 
 def _check_bounds(reader: _Reader, key: str, value: float, gt, ge, lt, le, unit: str) -> None:
@@ -428,22 +458,32 @@ def _axis(r: _Reader, a: dict, key: str, name: str, on_workpiece: bool) -> Axis:
         default = tuple(-x for x in default)  # the table moves against the program axis
     direction = _unit_vector(r, a, f"{key}.direction", default)
     if kind == "linear":
-        lo, hi = r.vector(a, f"{key}.travel_mm", 2, unit="mm")
+        lo, hi = r.vector(a, f"{key}.travel_mm", 2, unit="mm", bound=1e5)
         scale, unit, point = 1.0, "mm", (0.0, 0.0, 0.0)
     else:
-        lo, hi = r.vector(a, f"{key}.travel_deg", 2, unit="deg")
+        lo, hi = r.vector(a, f"{key}.travel_deg", 2, unit="deg", bound=1e5)
         scale, unit = math.pi / 180.0, "deg"
         point = r.vector(a, f"{key}.point_mm", 3, default=(0.0, 0.0, 0.0), unit="mm")
     if not lo < hi:
         raise r.fail(f"{key}.travel_{unit}", f"expected [min, max] with min < max, got [{lo:g}, {hi:g}]")
+    # plausibility bounds: the slowest and the fastest machine tools, with room to spare
+    # (linear motors reach about 3 m/s, 5 g and 1e6 mm/s^3; direct-drive tables 3000 deg/s)
+    vel, acc, jerk = _LIMIT_BOUNDS[kind]
     return Axis(
         name=name, kind=kind, direction=direction, point_mm=point,
         travel=(lo * scale, hi * scale),
-        max_velocity=r.number(a, f"{key}.max_velocity_{unit}_per_s", gt=0, unit=f"{unit}/s") * scale,
-        max_acceleration=r.number(a, f"{key}.max_acceleration_{unit}_per_s2", gt=0,
-                                  unit=f"{unit}/s^2") * scale,
-        max_jerk=r.number(a, f"{key}.max_jerk_{unit}_per_s3", gt=0, unit=f"{unit}/s^3") * scale,
+        max_velocity=r.number(a, f"{key}.max_velocity_{unit}_per_s", ge=vel[0], le=vel[1],
+                              unit=f"{unit}/s") * scale,
+        max_acceleration=r.number(a, f"{key}.max_acceleration_{unit}_per_s2", ge=acc[0],
+                                  le=acc[1], unit=f"{unit}/s^2") * scale,
+        max_jerk=r.number(a, f"{key}.max_jerk_{unit}_per_s3", ge=jerk[0], le=jerk[1],
+                          unit=f"{unit}/s^3") * scale,
     )
+
+
+#: (min, max) of velocity, acceleration and jerk limits, per axis kind (mm or deg)
+_LIMIT_BOUNDS = {"linear": ((0.1, 2e4), (1.0, 2e5), (10.0, 1e9)),
+                 "rotary": ((0.1, 1e5), (1.0, 1e6), (10.0, 1e10))}
 
 
 def _machine(r: _Reader, root: dict) -> MachineConfig:
@@ -456,7 +496,7 @@ def _machine(r: _Reader, root: dict) -> MachineConfig:
     for ax in chain:
         if ax not in AXIS_NAMES:
             raise r.fail("machine.workpiece_chain" if ax in workpiece else "machine.tool_chain",
-                         f"unknown axis {ax!r}; expected axis names among {', '.join(AXIS_NAMES)}")
+                         f"unknown axis {_short(ax)}; expected axis names among {', '.join(AXIS_NAMES)}")
     if len(set(chain)) != len(chain):
         raise r.fail("machine.workpiece_chain", f"an axis appears twice in the chains: {list(chain)}")
     axes_table = r.table(m, "machine.axes", chain)
@@ -479,7 +519,7 @@ def _machine(r: _Reader, root: dict) -> MachineConfig:
                                            "supported yet; put rotary axes in machine.workpiece_chain")
     return MachineConfig(
         name=name, axes=tuple(axes), workpiece_chain=workpiece, tool_chain=tool,
-        tool_length_mm=r.number(m, "machine.tool_length_mm", 0.0, ge=0, unit="mm"),
+        tool_length_mm=r.number(m, "machine.tool_length_mm", 0.0, ge=0, le=2000, unit="mm"),
         spindle_direction=_unit_vector(r, m, "machine.spindle_direction", (0.0, 0.0, 1.0)))
 
 
@@ -491,7 +531,8 @@ def _det3(rows) -> float:
 def _ballbar(r: _Reader, root: dict, machine: MachineConfig) -> BallbarConfig:
     b = r.table(root, "ballbar", ("bar_length_mm", "pivot_mm", "ball_diameter_mm",
                                   "bar_diameter_mm", "sensor_range_mm", "length_range_mm"))
-    length_range = r.vector(b, "ballbar.length_range_mm", 2, default=(50.0, 600.0), unit="mm")
+    length_range = r.vector(b, "ballbar.length_range_mm", 2, default=(50.0, 600.0), unit="mm",
+                            bound=3000)
     if not 0 < length_range[0] <= length_range[1]:
         raise r.fail("ballbar.length_range_mm",
                      f"expected [min, max] with 0 < min <= max, got {list(length_range)}")
@@ -501,12 +542,12 @@ def _ballbar(r: _Reader, root: dict, machine: MachineConfig) -> BallbarConfig:
                      f"expected a bar length within the instrument's reach "
                      f"{length_range[0]:g}..{length_range[1]:g} mm (ballbar.length_range_mm), "
                      f"got {length:g} mm")
-    ball = r.number(b, "ballbar.ball_diameter_mm", default=12.7, gt=0, unit="mm")
+    ball = r.number(b, "ballbar.ball_diameter_mm", default=12.7, ge=1, le=100, unit="mm")
     if not ball < length:
         raise r.fail("ballbar.ball_diameter_mm",
                      f"expected a ball diameter smaller than the bar length {length:g} mm, got {ball:g}")
     sensor = r.number(b, "ballbar.sensor_range_mm", default=1.0, gt=0, le=10.0, unit="mm")
-    bar = r.number(b, "ballbar.bar_diameter_mm", default=min(12.0, ball), gt=0, unit="mm")
+    bar = r.number(b, "ballbar.bar_diameter_mm", default=min(12.0, ball), ge=0.5, unit="mm")
     if bar > ball:
         raise r.fail("ballbar.bar_diameter_mm",
                      f"expected a bar no thicker than the balls ({ball:g} mm), got {bar:g}")
@@ -529,6 +570,10 @@ def _test(r: _Reader, root: dict, machine: MachineConfig) -> TestConfig:
         if not b > a:
             raise r.fail("test.track_elevations_deg",
                          f"expected strictly increasing elevations, got {a:g} then {b:g}")
+        if b - a < 1.0:
+            raise r.fail("test.track_elevations_deg",
+                         f"expected tracks at least 1 deg apart (a layer needs room for its "
+                         f"curves), got {a:g} then {b:g}")
     if elev[-1] >= 90:
         raise r.fail("test.track_elevations_deg",
                      f"expected elevations < 90 deg (the pole is the node TOP), got {elev[-1]:g}")
@@ -536,6 +581,10 @@ def _test(r: _Reader, root: dict, machine: MachineConfig) -> TestConfig:
     subs = r.integer(t, "test.subsegments_per_sector", 3, ge=1, le=20)
     dwell = r.number(t, "test.dwell_s", 2.0, gt=0, le=3600, unit="s")
     feed = r.number(t, "test.feed_mm_per_min", gt=0, unit="mm/min")
+    if feed < 1.0:
+        raise r.fail("test.feed_mm_per_min",
+                     f"expected a feed of at least 1 mm/min (programs write F with 3 decimals, "
+                     f"and a slower test would last days), got {feed:g}")
     slowest = min(ax.max_velocity for ax in machine.linear_axes) * 60.0
     fastest_path = math.sqrt(sum((ax.max_velocity * 60.0) ** 2 for ax in machine.linear_axes))
     if feed > fastest_path:
@@ -545,7 +594,7 @@ def _test(r: _Reader, root: dict, machine: MachineConfig) -> TestConfig:
     passes = r.strings(t, "test.passes", PASSES)
     for p in passes:
         if p not in PASSES:
-            raise r.fail("test.passes", f"expected passes among {', '.join(PASSES)}, got {p!r}")
+            raise r.fail("test.passes", f"expected passes among {', '.join(PASSES)}, got {_short(p)}")
     if len(set(passes)) != len(passes):
         raise r.fail("test.passes", f"expected each pass at most once, got {list(passes)}")
     transit = r.string(t, "test.transit", "meridian", TRANSITS)
@@ -554,7 +603,7 @@ def _test(r: _Reader, root: dict, machine: MachineConfig) -> TestConfig:
                 required=False)
     amplitude = r.number(c, "test.curve.amplitude", 1.0, gt=0, le=1)
     waves = r.integer(c, "test.curve.waves_per_sector", 1, ge=1, le=10)
-    cap = r.number(c, "test.curve.cap_elevation_deg", (elev[-1] + 90.0) / 2.0, unit="deg")
+    cap = r.number(c, "test.curve.cap_elevation_deg", (elev[-1] + 90.0) / 2.0, le=90, unit="deg")
     if not elev[-1] < cap < 90:
         raise r.fail("test.curve.cap_elevation_deg",
                      f"expected a value between the top track ({elev[-1]:g} deg) and 90 deg, got {cap:g}")
@@ -577,7 +626,7 @@ def _rotary(r: _Reader, t: dict, machine: MachineConfig) -> RotaryConfig:
         raise r.fail("test.rotary.locked_deg", "expected a table of axis = angle in deg, e.g. {B = 0, C = 0}")
     r.no_unknown(locked_table, "test.rotary.locked_deg", tuple(names))
     locked = tuple((n, math.radians(r.number(locked_table, f"test.rotary.locked_deg.{n}", 0.0,
-                                               unit="deg"))) for n in names)
+                                               ge=-1e5, le=1e5, unit="deg"))) for n in names)
     tilt = r.string(rot, "test.rotary.tilt_axis", names[0] if len(names) == 2 else "")
     turn = r.string(rot, "test.rotary.turn_axis", names[-1] if names else "")
     if schedule == "moving":
@@ -587,25 +636,36 @@ def _rotary(r: _Reader, t: dict, machine: MachineConfig) -> RotaryConfig:
         for key, value in (("tilt_axis", tilt), ("turn_axis", turn)):
             if value not in names:
                 raise r.fail(f"test.rotary.{key}",
-                             f"expected one of the rotary axes {', '.join(names)}, got {value!r}")
+                             f"expected one of the rotary axes {', '.join(names)}, got {_short(value)}")
         if tilt == turn:
             raise r.fail("test.rotary.turn_axis", "tilt and turn axes must differ")
+        dz = machine.axis(turn).direction[2]
+        if abs(dz) < 0.5:
+            raise r.fail(f"machine.axes.{turn}.direction",
+                         f"the 'moving' schedule turns the table about a near-vertical axis; "
+                         f"expected {turn}'s direction within 60 deg of Z, got "
+                         f"{[round(x, 4) for x in machine.axis(turn).direction]} (normalised)")
     return RotaryConfig(
         schedule=schedule, locked_rad=locked, tilt_axis=tilt, turn_axis=turn,
-        hold_azimuth_rad=math.radians(r.number(rot, "test.rotary.hold_azimuth_deg", 0.0, unit="deg")),
+        hold_azimuth_rad=math.radians(r.number(rot, "test.rotary.hold_azimuth_deg", 0.0,
+                                               ge=-360, le=360, unit="deg")),
         tilt_at_equator_rad=math.radians(r.number(rot, "test.rotary.tilt_at_equator_deg", 0.0,
-                                                  unit="deg")),
-        tilt_at_pole_rad=math.radians(r.number(rot, "test.rotary.tilt_at_pole_deg", 0.0, unit="deg")))
+                                                  ge=-360, le=360, unit="deg")),
+        tilt_at_pole_rad=math.radians(r.number(rot, "test.rotary.tilt_at_pole_deg", 0.0,
+                                               ge=-360, le=360, unit="deg")))
 
 
 def _check(r: _Reader, root: dict) -> CheckConfig:
     c = r.table(root, "check", ("travel_margin_mm", "angle_margin_deg", "safety_clearance_mm",
                                 "pose_spacing_mm"), required=False)
     return CheckConfig(
-        travel_margin_mm=r.number(c, "check.travel_margin_mm", 0.0, ge=0, unit="mm"),
-        angle_margin_rad=math.radians(r.number(c, "check.angle_margin_deg", 0.0, ge=0, unit="deg")),
-        safety_clearance_mm=r.number(c, "check.safety_clearance_mm", 1.0, ge=0, unit="mm"),
-        pose_spacing_mm=r.number(c, "check.pose_spacing_mm", 0.5, gt=0, le=0.5, unit="mm"))
+        travel_margin_mm=r.number(c, "check.travel_margin_mm", 0.0, ge=0, le=1000, unit="mm"),
+        angle_margin_rad=math.radians(r.number(c, "check.angle_margin_deg", 0.0, ge=0, le=90,
+                                               unit="deg")),
+        safety_clearance_mm=r.number(c, "check.safety_clearance_mm", 1.0, ge=0, le=200, unit="mm"),
+        # below 0.05 mm the pose count (and memory) grows past millions per layer while
+        # the clearance it finds changes by nanometres
+        pose_spacing_mm=r.number(c, "check.pose_spacing_mm", 0.5, ge=0.05, le=0.5, unit="mm"))
 
 
 _PART_KEYS = ("name", "body", "shape", "size_mm", "position_mm", "axis", "mesh_file")
@@ -631,9 +691,9 @@ def _scene(r: _Reader, root: dict, machine: MachineConfig) -> SceneConfig:
         body = r.string(p, f"{key}.body", choices=bodies)
         shape = r.string(p, f"{key}.shape", choices=SHAPES)
         n = _SIZES[shape]
-        size = r.vector(p, f"{key}.size_mm", n, unit="mm") if n else ()
-        if any(v <= 0 for v in size):
-            raise r.fail(f"{key}.size_mm", f"expected positive sizes, got {list(size)}")
+        size = r.vector(p, f"{key}.size_mm", n, unit="mm", bound=1e4) if n else ()
+        if any(v < 0.01 for v in size):
+            raise r.fail(f"{key}.size_mm", f"expected sizes of at least 0.01 mm, got {list(size)}")
         mesh = r.string(p, f"{key}.mesh_file", "") if shape == "mesh" else ""
         if shape == "mesh" and not mesh:
             raise r.fail(f"{key}.mesh_file", "a mesh part needs mesh_file (an STL path)")
@@ -651,7 +711,7 @@ def _scene(r: _Reader, root: dict, machine: MachineConfig) -> SceneConfig:
     for a, b in raw_allowed:
         for n in (a, b):
             if n not in names:
-                raise r.fail("scene.allowed_contacts", f"unknown part {n!r}; parts: {', '.join(sorted(names))}")
+                raise r.fail("scene.allowed_contacts", f"unknown part {_short(n)}; parts: {', '.join(sorted(names))}")
         allowed.append((a, b))
     return SceneConfig(parts=tuple(parts), allowed_contacts=tuple(allowed))
 
@@ -667,20 +727,23 @@ def _post(r: _Reader, root: dict) -> PostConfig:
     for name in controllers:
         if name not in known:
             raise r.fail("post.controllers",
-                         f"unknown controller {name!r}; known controllers: {', '.join(sorted(known))}")
+                         f"unknown controller {_short(name)}; known controllers: {', '.join(sorted(known))}")
     if len(set(controllers)) != len(controllers):
         raise r.fail("post.controllers", f"expected each controller once, got {list(controllers)}")
     offset = r.string(p, "post.work_offset", "G54")
-    if not re.fullmatch(r"G5(00|[4-9]|0[5-9]|[1-9][0-9])|G54\.1 P[0-9]+", offset):
+    if not re.fullmatch(r"G5(00|[4-9]|0[5-9]|[1-9][0-9])|G54\.1 P([1-9][0-9]{0,2})", offset) or (
+            offset.startswith("G54.1") and int(offset.split("P")[1]) > 300):
         raise r.fail("post.work_offset",
-                     f"expected a work offset such as G54..G59 or G500 (machine frame), got {offset!r}")
+                     f"expected a work offset such as G54..G59, G54.1 P1..P300 or G500 (machine "
+                     f"frame), got {offset[:40]!r}")
     return PostConfig(
         controllers=controllers,
         program_prefix=r.string(p, "post.program_prefix", "SDIT"),
         decimals=r.integer(p, "post.decimals", 6, ge=3, le=9),
         spline_degree=r.integer(p, "post.spline_degree", 3, ge=2, le=3),
-        spline_tolerance_um=r.number(p, "post.spline_tolerance_um", 0.01, gt=0, le=100, unit="um"),
-        chord_tolerance_um=r.number(p, "post.chord_tolerance_um", 0.1, gt=0, le=100, unit="um"),
+        spline_tolerance_um=r.number(p, "post.spline_tolerance_um", 0.01, ge=0.001, le=100,
+                                     unit="um"),
+        chord_tolerance_um=r.number(p, "post.chord_tolerance_um", 0.1, ge=0.001, le=100, unit="um"),
         work_offset=offset,
         comment=r.string(p, "post.comment", ""),
         five_axis_mode=r.string(p, "post.five_axis_mode", "traori", FIVE_AXIS_MODES),
@@ -706,7 +769,7 @@ def parse_config(text: str, source: str = "<config>") -> Config:
     scene = _scene(r, root, machine)
     tm = r.table(root, "timing", ("sample_rate_hz", "export_trajectories"), required=False)
     timing = TimingConfig(
-        sample_rate_hz=r.number(tm, "timing.sample_rate_hz", 1000.0, gt=0, le=20000, unit="Hz"),
+        sample_rate_hz=r.number(tm, "timing.sample_rate_hz", 1000.0, ge=10, le=5000, unit="Hz"),
         export_trajectories=r.boolean(tm, "timing.export_trajectories", True))
     _pivot_reachable(r, machine, ballbar, test)
     return Config(source=source, machine=machine, ballbar=ballbar, test=test, post=post,
@@ -738,17 +801,20 @@ def load_config(path: str | Path | None = None) -> Config:
         text = sample_path(DEFAULT_SAMPLE).read_text(encoding="utf-8")
         return parse_config(text, source=f"samples/{DEFAULT_SAMPLE}")
     p = Path(path)
-    if not p.exists() and p.parent == Path("."):
-        bundled = bundled_samples()
-        name = p.name if p.suffix == ".toml" else f"{p.name}.toml"
-        if name in bundled:
+    raw_name = str(path)
+    looks_like_a_path = ("/" in raw_name or "\\" in raw_name or raw_name.endswith(".toml")
+                         or raw_name.startswith("."))
+    if not looks_like_a_path and not p.exists():
+        name = f"{raw_name}.toml"
+        if name in bundled_samples():
             text = sample_path(name).read_text(encoding="utf-8")
             return parse_config(text, source=f"samples/{name}")
     try:
         raw = p.read_bytes()
     except FileNotFoundError:
-        raise ConfigError(str(p), f"no such file; expected a TOML configuration or a bundled "
-                                  f"sample ({', '.join(bundled_samples())})") from None
+        names = ", ".join(n.removesuffix(".toml") for n in bundled_samples())
+        raise ConfigError(str(p), f"no such file; expected a TOML configuration file, or the "
+                                  f"bare name of a bundled sample ({names})") from None
     except IsADirectoryError:
         raise ConfigError(str(p), "is a directory; expected a TOML configuration file") from None
     except OSError as exc:

@@ -71,3 +71,11 @@ class OutputError(SditError):
     """The output location cannot be used (not empty without --force, not writable)."""
 
     exit_code = 5
+
+
+class RecordingError(SditError):
+    """A readable recording that does not fit the program it is given with (shorter or
+    far longer than the program, too few readings where the program runs, no alignment
+    found)."""
+
+    exit_code = 6

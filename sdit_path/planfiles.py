@@ -46,6 +46,7 @@ class PlanFiles:
         _check_fingerprint(self.directory, self.manifest, entry["trajectory"])
         samples = read_csv_file(path)
         _check_samples(samples, str(path), self.config)
+        _check_program(path, entry, samples)
         return samples
 
     def tested_travel(self) -> dict[str, tuple[float, float]]:
@@ -113,6 +114,39 @@ def _check_samples(s: Samples, source: str, config: Config) -> None:
     if tuple(sorted(s.axis_names)) != tuple(sorted(expected)):
         raise ConfigError(source, f"axis columns {', '.join(s.axis_names) or 'none'}; the "
                                   f"plan's machine has {', '.join(expected)}")
+
+
+def _header_lines(path: Path) -> dict[str, str]:
+    """The ``# key: value`` lines at the top of a (possibly gzip-compressed) trajectory."""
+    import gzip
+
+    opener = gzip.open if path.suffix == ".gz" else open
+    out = {}
+    try:
+        with opener(path, "rt", encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                if not line.startswith("#"):
+                    break
+                key, _, value = line[1:].partition(":")
+                out[key.strip()] = value.strip()
+    except (OSError, EOFError):
+        pass
+    return out
+
+
+def _check_program(path: Path, entry: dict, s: Samples) -> None:
+    """The trajectory is the whole timed program the manifest names."""
+    head = _header_lines(path)
+    if head.get("program", entry["name"]) != entry["name"]:
+        raise ConfigError(str(path), f"holds the trajectory of {head.get('program')!r}, not of "
+                                     f"{entry['name']!r}; the plan directory was changed")
+    cycle = entry.get("cycle_time_s")
+    if isinstance(cycle, (int, float)) and not isinstance(cycle, bool):
+        step = float(s.t_s[1] - s.t_s[0])
+        if not abs(float(s.t_s[-1]) - cycle) <= 2 * step + 1e-3:
+            raise ConfigError(str(path), f"ends at {float(s.t_s[-1]):.3f} s, but the program "
+                                         f"{entry['name']} lasts {cycle:.3f} s; the trajectory "
+                                         f"is cut or damaged")
 
 
 def _manifest_shape(m, where: str) -> dict:

@@ -21,12 +21,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import correlate
 
-from ..errors import SditError
+from ..errors import RecordingError
 from .context import Context
 
 
-class AlignmentError(SditError):
-    exit_code = 3
+class AlignmentError(RecordingError):
+    """The recording cannot be aligned to its program."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -193,12 +193,22 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
     return Alignment(offset_s, k * 1e6, std[0], std[1], rms)
 
 
+def check_span(span_s: float, program_s: float, ppm_limit: float = 200.0) -> None:
+    """A recording must last at least its program and not absurdly longer (a recording
+    of another program, or times written in milliseconds)."""
+    if span_s < program_s * (1 - ppm_limit * 1e-6):
+        raise AlignmentError(f"the trace lasts {span_s:.3f} s, the program {program_s:.3f} s: "
+                             f"the recording is shorter than the program")
+    if span_s > 2.0 * program_s + 120.0:
+        raise AlignmentError(f"the trace lasts {span_s:.6g} s, the program {program_s:.3f} s: "
+                             f"far longer than the program (another program's recording, or "
+                             f"times in milliseconds?)")
+
+
 def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
           ppm_limit: float = 200.0) -> Alignment:
     X = generic_columns(ctx, expected_um)
-    if t_m[-1] - t_m[0] < ctx.duration_s * (1 - ppm_limit * 1e-6):
-        raise AlignmentError(f"the trace lasts {t_m[-1] - t_m[0]:.3f} s, the program "
-                             f"{ctx.duration_s:.3f} s: the recording is shorter than the program")
+    check_span(t_m[-1] - t_m[0], ctx.duration_s, ppm_limit)
     valid = int(np.isfinite(y).sum())
     if valid < max(1000, 0.5 * len(y)):
         raise AlignmentError(f"only {valid} of {len(y)} samples hold a reading (the rest are "

@@ -33,7 +33,7 @@ import numpy as np
 from ..config import Config
 from ..errormodel.chain import sensitivities
 from ..errormodel.model import ErrorModel, ModelOptions, build_model, prior_scale
-from ..errors import ConfigError
+from ..errors import ConfigError, RecordingError
 from ..machine.kinematics import Kinematics
 from ..machine.schedule import RotarySchedule
 from ..planfiles import PlanFiles
@@ -90,6 +90,12 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
         y_full = np.full(len(q), np.nan)
         y_full[idx[inside]] = trace.delta_l_um[inside]
         y = y_full
+        covered = float(np.isfinite(y[valid]).mean()) if valid.any() else 0.0
+        if covered < 0.5:
+            raise RecordingError(
+                f"{program}: the trace holds readings for {covered:.0%} of the program's "
+                f"{len(q) / rate:.1f} s; identification needs a recording of the whole program "
+                f"(at least half of it)")
         valid &= np.isfinite(y)
     rows = np.flatnonzero(valid)
     scale = np.array([prior_scale(p) for p in model.parameters])

@@ -187,7 +187,7 @@ def plan_directory_files(result: PlanResult, on_step=None) -> dict[str, str | by
     for rel, text in trajectory_files(result, on_step=on_step).items():
         # gzip level 1: a quarter of the CSV's size in a third of a second per layer;
         # mtime 0 and no file name keep the bytes reproducible
-        files[rel + ".gz"] = gzip.compress(text.encode("ascii"), compresslevel=1, mtime=0)
+        files[rel + ".gz"] = gzip.compress(text.encode("utf-8"), compresslevel=1, mtime=0)
     files["config.toml"] = result.config.text
     files["plan.json"] = manifest_text(result, files)
     return files

@@ -3,8 +3,11 @@
 UTF-8 CSV.  Optional leading ``# key: value`` lines.  A header row with at least
 ``t_s`` and ``delta_l_um`` (or ``delta_l_mm``), in any column order; other columns are
 kept when they are ``segment``/``phase`` and ignored otherwise.  Empty or NaN values
-are dropouts.  Anything else - no such columns, a non-numeric value, time going
-backwards, no data - is an error naming the file and line.
+are dropouts.  What a spreadsheet export writes is read too, where it is unambiguous:
+columns separated by ``;`` or tabs (then a decimal comma is read as a point), quoted
+header names and cells.  Anything else - no such columns, a non-numeric value, time
+going backwards, no data, times that are not seconds from the start of the recording
+(milliseconds, epoch timestamps) - is an error naming the file and line.
 """
 
 from __future__ import annotations
@@ -24,6 +27,47 @@ class TraceError(SditError):
     exit_code = 2
 
 
+#: A recording with fewer readings than this holds no usable information.
+MIN_SAMPLES = 100
+#: Slowest plausible sample rate of a ballbar recording (Hz).
+MIN_RATE_HZ = 10.0
+
+
+def _cell(text: str, limit: int = 40) -> str:
+    return repr(text) if len(text) <= limit else repr(text[:limit]) + f"... ({len(text)} chars)"
+
+
+def _dialect(p: Path, header_line: str, first_row: str | None, lineno: int) -> tuple[str, bool]:
+    """(column separator, decimal comma) of a trace file, or a TraceError saying what
+    to change when the format is ambiguous."""
+    if "\t" in header_line:
+        sep = "\t"
+    elif ";" in header_line:
+        sep = ";"
+    else:
+        sep = ","
+    decimal_comma = sep != "," and first_row is not None and "," in first_row
+    if sep == "," and first_row is not None:
+        n_head = header_line.count(",") + 1
+        n_row = first_row.count(",") + 1
+        if n_row > n_head and ";" not in first_row:
+            raise TraceError(f"{p}:{lineno + 1}: {n_row} fields under a header of {n_head}; if "
+                             f"the numbers use decimal commas, separate the columns with ';' or "
+                             f"tabs (or write decimal points)")
+    return sep, decimal_comma
+
+
+def _canonical(text: str, sep: str, decimal_comma: bool) -> str:
+    """The same table as plain comma-separated text with decimal points."""
+    if '"' in text:
+        text = text.replace('"', "")
+    if sep != ",":
+        if decimal_comma:
+            text = text.replace(",", ".")
+        text = text.replace(sep, ",")
+    return text
+
+
 def read_trace(path: str | Path) -> Trace:
     p = Path(path)
     try:
@@ -39,6 +83,17 @@ def read_trace(path: str | Path) -> Trace:
         raise TraceError(f"{p}:{line}: not UTF-8 text") from None
     header: dict[str, str] = {}
     lines = text.splitlines()
+    k0 = 0
+    while k0 < len(lines) and (lines[k0].startswith("#") or not lines[k0].strip()):
+        k0 += 1
+    if k0 < len(lines):
+        first = next((ln for ln in lines[k0 + 1:k0 + 50] if ln.strip() and not ln.startswith("#")),
+                     None)
+        sep, decimal_comma = _dialect(p, lines[k0], first, k0 + 1)
+        if sep != "," or '"' in text:
+            head, body = "\n".join(lines[:k0]), "\n".join(lines[k0:])
+            text = head + ("\n" if head else "") + _canonical(body, sep, decimal_comma)
+            lines = text.splitlines()
     k = 0
     while k < len(lines) and (lines[k].startswith("#") or not lines[k].strip()):
         line = lines[k].lstrip("#").strip()
@@ -50,11 +105,48 @@ def read_trace(path: str | Path) -> Trace:
         raise TraceError(f"{p}: no header row; expected columns t_s and delta_l_um (or delta_l_mm)")
     cols = [c.strip() for c in lines[k].split(",")]
     if "t_s" not in cols or not ({"delta_l_um", "delta_l_mm"} & set(cols)):
-        raise TraceError(f"{p}:{k + 1}: header row {lines[k][:80]!r} lacks t_s and delta_l_um "
-                         f"(or delta_l_mm)")
+        raise TraceError(f"{p}:{k + 1}: header row {_cell(lines[k], 80)} lacks t_s and "
+                         f"delta_l_um (or delta_l_mm)")
     fast = _read_fast(p, text, lines, k, cols, header)
     if fast is not None:
-        return fast
+        return _plausible(p, fast, k)
+    return _plausible(p, _read_careful(p, lines, k, cols, header), k)
+
+
+def _plausible(p: Path, trace: Trace, k: int) -> Trace:
+    """A recording whose times are seconds from its start and that holds readings."""
+    t, dl = trace.t_s, trace.delta_l_um
+    finite = int(np.isfinite(dl).sum())
+    if finite < MIN_SAMPLES:
+        raise TraceError(f"{p}: {finite} reading(s) that are numbers (of {len(t)} rows); expected "
+                         f"a recording of at least {MIN_SAMPLES}")
+    if t[0] > 1e6:
+        raise TraceError(f"{p}:{k + 2}: t_s starts at {t[0]:.6g} s, which looks like a clock "
+                         f"or epoch timestamp; expected seconds from the start of the recording "
+                         f"(subtract the first time)")
+    if t[0] < -1.0:
+        raise TraceError(f"{p}:{k + 2}: t_s starts at {t[0]:.6g} s; expected seconds from the "
+                         f"start of the recording")
+    rate = 1.0 / float(np.median(np.diff(t)))
+    if rate < MIN_RATE_HZ:
+        raise TraceError(f"{p}: samples {1.0 / rate:.6g} s apart ({rate:.3g} Hz); a ballbar "
+                         f"records at {MIN_RATE_HZ:g} Hz or more: are the times in t_s "
+                         f"milliseconds? (write seconds)")
+    stated = trace.header.get("sample_rate_hz")
+    if stated is not None:
+        try:
+            stated_hz = float(stated)
+        except ValueError:
+            stated_hz = float("nan")
+        if math.isfinite(stated_hz) and stated_hz > 0 and not 0.9 < rate / stated_hz < 1.1:
+            raise TraceError(f"{p}: samples {1.0 / rate:.6g} s apart ({rate:.6g} Hz), but the "
+                             f"header says sample_rate_hz: {_cell(stated)}; are the times in "
+                             f"t_s in seconds?")
+    return trace
+
+
+def _read_careful(p: Path, lines: list[str], k: int, cols: list[str], header: dict) -> Trace:
+    """Line by line, naming the first line that is not what the contract says."""
     it = cols.index("t_s")
     unit = "delta_l_um" if "delta_l_um" in cols else "delta_l_mm"
     il = cols.index(unit)
@@ -76,7 +168,7 @@ def read_trace(path: str | Path) -> Trace:
         try:
             tv = float(parts[it])
         except ValueError:
-            raise TraceError(f"{p}:{j}: t_s {parts[it]!r} is not a number") from None
+            raise TraceError(f"{p}:{j}: t_s {_cell(parts[it])} is not a number") from None
         if not math.isfinite(tv):
             raise TraceError(f"{p}:{j}: t_s is not finite")
         if n and tv <= t[n - 1]:
@@ -88,9 +180,10 @@ def read_trace(path: str | Path) -> Trace:
             try:
                 lv = float(cell) * factor
             except ValueError:
-                raise TraceError(f"{p}:{j}: {unit} {cell!r} is not a number") from None
+                raise TraceError(f"{p}:{j}: {unit} {_cell(cell)} is not a number") from None
             if math.isinf(lv):
-                raise TraceError(f"{p}:{j}: {unit} {cell!r} is not finite (a dropout is empty or nan)")
+                raise TraceError(f"{p}:{j}: {unit} {_cell(cell)} is not finite (a dropout is "
+                                 f"empty or nan)")
         t[n], dl[n] = tv, lv
         seg[n] = parts[iseg].strip() if iseg is not None else ""
         ph[n] = parts[iph].strip() if iph is not None else ""

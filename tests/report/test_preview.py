@@ -6,6 +6,8 @@ import sys
 import matplotlib.image as mpimg
 import numpy as np
 
+from sdit_path.output import MARKER
+
 from conftest import DATA
 
 
@@ -14,10 +16,11 @@ def test_preview_writes_three_readable_pictures_per_layer(tmp_path):
     r = subprocess.run([sys.executable, "-m", "sdit_path", "preview", str(DATA / "golden_small.toml"),
                         "--out", str(out), "--feed", "3000", "-q"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
-    names = sorted(p.name for p in out.iterdir())
+    names = sorted(p.name for p in out.iterdir() if p.name != MARKER)
     assert names == sorted(f"GOLD_{layer}_{kind}.png" for layer in "AB"
                            for kind in ("speed", "axes", "hemisphere"))
-    for p in out.iterdir():
+    assert (out / MARKER).is_file()
+    for p in out.glob("*.png"):
         data = p.read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n"
         img = mpimg.imread(p)
