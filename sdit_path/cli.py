@@ -174,6 +174,13 @@ def preview_command(config: str | None, out_dir: str, feed: float | None, force:
         Console().print(f"wrote {len(files)} pictures to {out}/")
 
 
+def _in_range(name: str, value: float, lo: float, hi: float) -> None:
+    from .errors import ConfigError
+
+    if not lo <= value <= hi:  # also refuses nan
+        raise ConfigError(name, f"expected a value in [{lo:g}, {hi:g}], got {value:g}")
+
+
 def _floats(text: str, n: int, name: str) -> tuple[float, ...]:
     from .errors import ConfigError
 
@@ -200,8 +207,9 @@ def _floats(text: str, n: int, name: str) -> tuple[float, ...]:
 @click.option("--seed", default=0, show_default=True, help="Noise seed.")
 @click.option("--out", "out_file", required=True, type=click.Path(dir_okay=False),
               help="Trace CSV to write.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress lines on stderr.")
 def simulate_command(plan_dir, program, errors_file, centring_um, bar_offset_um, noise_um,
-                     quantisation_um, seed, out_file) -> None:
+                     quantisation_um, seed, out_file, quiet) -> None:
     """Simulate the ballbar trace of PROGRAM for an error set."""
     from .errormodel.errorset import load_error_set
     from .output import write_file
@@ -209,11 +217,21 @@ def simulate_command(plan_dir, program, errors_file, centring_um, bar_offset_um,
     from .sim.simulate import simulate_trace, trace_csv
 
     try:
-        plan = load_plan(plan_dir)
-        errors = load_error_set(errors_file)
-        trace = simulate_trace(plan, program, errors, _floats(centring_um, 3, "--centring-um"),
-                               bar_offset_um, noise_um, quantisation_um, seed)
-        write_file(out_file, trace_csv(trace))
+        _in_range("--noise-um", noise_um, 0, 1000)
+        _in_range("--quantisation-um", quantisation_um, 0, 100)
+        _in_range("--bar-offset-um", bar_offset_um, -1e4, 1e4)
+        centring = _floats(centring_um, 3, "--centring-um")
+        for v in centring:
+            _in_range("--centring-um", v, -1e4, 1e4)
+        with _Steps(quiet, 3, "reading the plan") as step:
+            plan = load_plan(plan_dir)
+            errors = load_error_set(errors_file)
+            step(f"simulating {program}")
+            trace = simulate_trace(plan, program, errors, centring, bar_offset_um, noise_um,
+                                   quantisation_um, seed)
+            step(f"writing {out_file}")
+            write_file(out_file, trace_csv(trace))
+            step("done")
     except SditError as exc:
         _fail(exc)
         return
@@ -241,8 +259,9 @@ def simulate_command(plan_dir, program, errors_file, centring_um, bar_offset_um,
               help="Also give every ISO parameter under a Tikhonov prior, labelled data- or prior-driven.")
 @click.option("--ask", multiple=True, help="A parameter you need: say what would make it identifiable.")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Write the full report.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress lines on stderr.")
 def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, rotary_order,
-                     no_squareness, no_location, prior, ask, json_out) -> None:
+                     no_squareness, no_location, prior, ask, json_out, quiet) -> None:
     """Identify what the traces determine about the machine's geometric errors."""
     import json
 
@@ -259,19 +278,27 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
             raise ConfigError("--plan", f"give one plan, or one per trace ({len(traces)})")
         if programs and len(programs) != len(traces):
             raise ConfigError("--program", f"give one program per trace ({len(traces)})")
-        plans = [load_plan(d) for d in plan_dirs]
-        experiments = []
-        for k, path in enumerate(traces):
-            trace = read_trace(path)
-            prog = programs[k] if programs else trace.header.get("program")
-            if not prog:
-                raise ConfigError(path, "no '# program:' line; pass --program")
-            experiments.append((plans[k if len(plans) > 1 else 0], prog, trace))
-        options = ModelOptions(linear_basis, linear_order, rotary_order, not no_squareness,
-                               not no_location)
-        report = identify(experiments, options, prior=prior, ask=tuple(ask))
-        if json_out:
-            write_file(json_out, json.dumps(report, indent=2) + "\n")
+        with _Steps(quiet, len(traces) + 2, "reading the plan") as step:
+            plans = [load_plan(d) for d in plan_dirs]
+            experiments = []
+            for k, path in enumerate(traces):
+                step(f"reading {path}")
+                trace = read_trace(path)
+                prog = programs[k] if programs else trace.header.get("program")
+                if not prog:
+                    raise ConfigError(path, "no '# program:' line; pass --program")
+                plan_k = plans[k if len(plans) > 1 else 0]
+                if prog not in plan_k.program_names:
+                    raise ConfigError(path, f"program {prog[:40]!r} is not in the plan "
+                                            f"({', '.join(plan_k.program_names)}); pass --program")
+                experiments.append((plan_k, prog, trace))
+            options = ModelOptions(linear_basis, linear_order, rotary_order, not no_squareness,
+                                   not no_location)
+            step("identifying")
+            report = identify(experiments, options, prior=prior, ask=tuple(ask))
+            if json_out:
+                write_file(json_out, json.dumps(report, indent=2) + "\n")
+            step("done")
     except SditError as exc:
         _fail(exc)
         return
@@ -295,8 +322,9 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
               help="Measured-trace CSV to write (t_s, delta_l_um).")
 @click.option("--truth", "truth_file", type=click.Path(dir_okay=False),
               help="Write what was hidden here (never into the trace).")
+@click.option("--quiet", "-q", is_flag=True, help="No progress lines on stderr.")
 def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead_s, clock_ppm,
-                    out_file, truth_file) -> None:
+                    out_file, truth_file, quiet) -> None:
     """Make a realistic measured trace of PROGRAM with hidden effects."""
     import dataclasses
     import json
@@ -311,33 +339,40 @@ def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead
                               measured_csv, parse_effect, perturb, truth_json)
 
     try:
-        plan = load_plan(plan_dir)
-        model = load_error_set(model_file) if model_file else None
-        ctx = build_context(plan, program)
-        if seed is not None and not effects:
-            _, hidden = draw_case(seed, ctx)
-        else:
-            hidden = [parse_effect(e) for e in effects]
-        # parameters not given are drawn (seeded), the given ones kept
-        rng = np.random.default_rng([seed or 0, 5])
-        drawn = [draw_effect(h.name, rng, ctx).params for h in hidden]
-        for h, d in zip(hidden, drawn):
-            unknown = sorted(set(h.params) - set(d))
-            if unknown:
-                raise ConfigError("--effect", f"{h.name}: unknown parameter(s) {', '.join(unknown)}; "
-                                              f"expected some of {', '.join(d)}")
-        hidden = [Hidden(h.name, {**d, **h.params}) for h, d in zip(hidden, drawn)]
-        rec = draw_recording(seed) if seed is not None else Recording()
-        changes = {k: v for k, v in (("noise_um", noise_um), ("lead_s", lead_s),
-                                     ("clock_ppm", clock_ppm)) if v is not None}
-        rec = dataclasses.replace(rec, **changes)
-        for target in (out_file, truth_file):
-            if target and Path(target).is_dir():
-                raise OutputError(f"{target}: is a directory")
-        trace, truth = perturb(plan, program, model, hidden, rec, seed or 0, ctx)
-        write_file(out_file, measured_csv(trace))
-        if truth_file:
-            write_file(truth_file, json.dumps(truth_json(truth), indent=2) + "\n")
+        for name, v, lo, hi in (("--noise-um", noise_um, 0, 100), ("--lead-s", lead_s, 0, 600),
+                                ("--clock-ppm", clock_ppm, -1000, 1000)):
+            if v is not None:
+                _in_range(name, v, lo, hi)
+        with _Steps(quiet, 3, "reading the plan") as step:
+            plan = load_plan(plan_dir)
+            model = load_error_set(model_file) if model_file else None
+            ctx = build_context(plan, program)
+            if seed is not None and not effects:
+                _, hidden = draw_case(seed, ctx)
+            else:
+                hidden = [parse_effect(e) for e in effects]
+            # parameters not given are drawn (seeded), the given ones kept
+            rng = np.random.default_rng([seed or 0, 5])
+            drawn = [draw_effect(h.name, rng, ctx).params for h in hidden]
+            for h, d in zip(hidden, drawn):
+                unknown = sorted(set(h.params) - set(d))
+                if unknown:
+                    raise ConfigError("--effect", f"{h.name}: unknown parameter(s) {', '.join(unknown)}; "
+                                                  f"expected some of {', '.join(d)}")
+            hidden = [Hidden(h.name, {**d, **h.params}) for h, d in zip(hidden, drawn)]
+            rec = draw_recording(seed) if seed is not None else Recording()
+            changes = {k: v for k, v in (("noise_um", noise_um), ("lead_s", lead_s),
+                                         ("clock_ppm", clock_ppm)) if v is not None}
+            rec = dataclasses.replace(rec, **changes)
+            for target in (out_file, truth_file):
+                if target and Path(target).is_dir():
+                    raise OutputError(f"{target}: is a directory")
+            step(f"simulating {program} with {len(hidden)} hidden effect(s)")
+            trace, truth = perturb(plan, program, model, hidden, rec, seed or 0, ctx)
+            step(f"writing {out_file}")
+            write_file(out_file, measured_csv(trace))
+            if truth_file:
+                write_file(truth_file, json.dumps(truth_json(truth), indent=2) + "\n")
     except SditError as exc:
         _fail(exc)
         return

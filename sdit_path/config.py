@@ -174,7 +174,7 @@ class CheckConfig:
 
 @dataclass(frozen=True, slots=True)
 class TimingConfig:
-    """Trajectory export: ``sample_rate_hz`` of ``DIR/trajectories/<program>.csv``."""
+    """Trajectory export: ``sample_rate_hz`` of ``DIR/trajectories/<program>.csv.gz``."""
 
     sample_rate_hz: float
     export_trajectories: bool

@@ -30,6 +30,7 @@ class Recorder:
     traverses: list = field(default_factory=list)
     dwells: list = field(default_factory=list)
     arcs: list = field(default_factory=list)
+    messages: list = field(default_factory=list)
     line: int = 0
 
     def __getattr__(self, name):  # every other canonical call is accepted and ignored
@@ -49,6 +50,9 @@ class Recorder:
 
     def arc_feed(self, *a):
         self.arcs.append((self.line,) + a)
+
+    def message(self, text):  # (MSG, ...) and the like reach the operator's screen
+        self.messages.append((self.line, text))
 
     def dwell(self, seconds):
         self.dwells.append((self.line, seconds))

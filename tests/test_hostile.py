@@ -28,7 +28,7 @@ from sdit_path.output import MARKER, write_file, write_tree
 from sdit_path.planfiles import load_plan
 from sdit_path.sim.traceio import read_trace
 
-from conftest import DATA, edit
+from conftest import DATA, edit, have_linuxcnc
 
 SMALL = DATA / "golden_small.toml"
 
@@ -154,6 +154,12 @@ def test_user_text_never_reaches_a_controller_as_something_it_acts_on(tmp_path):
                         assert not linuxcnc_acts_on(c), (payload, line)
             elif name.endswith(".MPF"):
                 assert all(len(ln) <= 512 for ln in data.decode("ascii").splitlines())
+        if have_linuxcnc():  # LinuxCNC's own interpreter runs it and shows nothing
+            from linuxcnc_oracle import interpret, ok
+
+            result, message, rec = interpret(str(out / "linuxcnc" / "PYRELOAD_A.ngc"))
+            assert ok(result), message
+            assert rec.messages == [] and len(rec.feeds) > 100
         if k == 0:  # user text kept as data where nothing acts on it
             manifest = json.loads((out / "plan.json").read_text(encoding="utf-8"))
             assert manifest["machine"].startswith("中文 Fräse")

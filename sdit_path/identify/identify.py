@@ -90,7 +90,11 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
         y_full = np.full(len(q), np.nan)
         y_full[idx[inside]] = trace.delta_l_um[inside]
         y = y_full
-        covered = float(np.isfinite(y[valid]).mean()) if valid.any() else 0.0
+        # share of the program's seconds with a reading (the trace may be sampled
+        # more sparsely than the trajectory)
+        heard = np.unique(np.floor(trace.t_s[np.isfinite(trace.delta_l_um)]).astype(np.int64))
+        program_s = np.unique(np.floor(traj.t_s[valid]).astype(np.int64))
+        covered = float(np.isin(program_s, heard).mean()) if len(program_s) else 0.0
         if covered < 0.5:
             raise RecordingError(
                 f"{program}: the trace holds readings for {covered:.0%} of the program's "

@@ -126,7 +126,7 @@ def test_cycle_times_in_the_manifest(default_plan):
     m = manifest(default_plan)
     for p in m["programs"]:
         assert p["cycle_time_s"] > p["motion_time_s"] > 0
-        assert p["trajectory"] == f"trajectories/{p['name']}.csv"
+        assert p["trajectory"] == f"trajectories/{p['name']}.csv.gz"
 
 
 def test_a_ramp_to_the_feed_is_one_profile_not_a_staircase():
