@@ -61,3 +61,13 @@ def test_blind_check_runs_and_prints_its_scores():
     for key in ("top-1 effect", "false findings, clean traces", "honest outside the library",
                 "held-out shrink"):
         assert key in r.stdout
+
+
+def test_fuzz_campaign_runs_a_bounded_sample():
+    """A bounded sample of the outside fuzzing campaign: mutated configs planned end to
+    end in their own processes, none ending in a traceback, a signal or a hang."""
+    r = subprocess.run([sys.executable, str(BENCH / "fuzz_campaign.py"), "--cases", "6",
+                        "--seed", "3", "--timeout", "300"], capture_output=True, text=True,
+                       timeout=900)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "6 mutated configs planned end to end" in r.stdout and "failures: 0" in r.stdout
