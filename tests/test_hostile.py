@@ -495,8 +495,9 @@ def test_fuzz_config_loader():
     ConfigError with one line naming the file; nothing else escapes."""
     rng = random.Random(1414)
     bases = [BASE3, BASE5, sample_path("vmc_3axis_collision.toml").read_text()]
+    cases = int(os.environ.get("SDIT_FUZZ_CASES", "400"))  # a longer campaign on request
     tried = accepted = 0
-    for _ in range(400):
+    for _ in range(cases):
         text = _mutate_config(rng.choice(bases), rng)
         tried += 1
         try:
@@ -505,7 +506,8 @@ def test_fuzz_config_loader():
         except ConfigError as exc:
             msg = str(exc)
             assert msg.startswith("fuzz.toml") and "\n" not in msg and len(msg) < 500, msg[:600]
-    assert tried == 400 and 0 < accepted < tried
+    assert tried == cases and 0 < accepted < tried
+    print(f"config fuzz: {tried} tried, {accepted} accepted")
 
 
 def _mutate_trace(text: str, rng: random.Random) -> str:
@@ -540,8 +542,9 @@ def test_fuzz_recording_reader(tmp_path):
     rng = random.Random(1415)
     base = _trace_text(n=400)
     p = tmp_path / "fuzz.csv"
+    cases = int(os.environ.get("SDIT_FUZZ_CASES", "300"))
     tried = accepted = 0
-    for _ in range(300):
+    for _ in range(cases):
         p.write_text(_mutate_trace(base, rng), encoding="utf-8")
         tried += 1
         try:
@@ -554,4 +557,5 @@ def test_fuzz_recording_reader(tmp_path):
         assert np.all(np.isfinite(tr.t_s)) and np.all(np.diff(tr.t_s) > 0)
         assert not np.any(np.isinf(tr.delta_l_um))
         assert int(np.isfinite(tr.delta_l_um).sum()) >= 100
-    assert tried == 300 and 0 < accepted < tried
+    assert tried == cases and 0 < accepted < tried
+    print(f"recording fuzz: {tried} tried, {accepted} accepted")
