@@ -159,8 +159,8 @@ def preview_command(config: str | None, out_dir: str, feed: float | None, force:
         protect = (cfg.source,) if config else ()
         check_output(out_dir, force, "preview", protect)
         if feed is not None:
-            if not 0 < feed <= 1e6:
-                raise ConfigError("--feed", f"expected a feed in (0, 1e6] mm/min, got {feed:g}")
+            if not 1 <= feed <= 1e6:
+                raise ConfigError("--feed", f"expected a feed in [1, 1e6] mm/min, got {feed:g}")
             cfg = dataclasses.replace(cfg, test=dataclasses.replace(cfg.test, feed_mm_per_min=feed))
         with _Steps(quiet, step_count(cfg) + len(cfg.test.track_elevations_deg),
                     "planning") as step:

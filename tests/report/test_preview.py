@@ -31,4 +31,4 @@ def test_preview_writes_three_readable_pictures_per_layer(tmp_path):
 def test_preview_rejects_a_bad_feed(tmp_path):
     r = subprocess.run([sys.executable, "-m", "sdit_path", "preview", "--out", str(tmp_path / "x"),
                         "--feed", "-5"], capture_output=True, text=True)
-    assert r.returncode == 2 and "--feed: expected a feed in (0, 1e6] mm/min" in r.stderr
+    assert r.returncode == 2 and "--feed: expected a feed in [1, 1e6] mm/min" in r.stderr
