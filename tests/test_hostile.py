@@ -441,13 +441,20 @@ def test_a_full_disk_is_one_clear_line_from_every_writer(full_disk, small_plan, 
     trace = tmp_path / "t.csv"
     assert run("simulate", "--plan", str(small_plan), "--program", "GOLD_A", "--errors",
                "paper_table2", "--out", str(trace)).returncode == 0
+    measured = tmp_path / "m.csv"
+    assert run("perturb", "--plan", str(small_plan), "--program", "GOLD_A", "--seed", "2",
+               "--out", str(measured)).returncode == 0
     for args in (["plan", str(SMALL), "--out", str(full_disk / "p")],
                  ["simulate", "--plan", str(small_plan), "--program", "GOLD_A", "--errors",
                   "paper_table2", "--out", str(full_disk / "s.csv")],
                  ["identify", "--plan", str(small_plan), "--trace", str(trace), "--json",
                   str(full_disk / "i.json")],
                  ["perturb", "--plan", str(small_plan), "--program", "GOLD_A", "--seed", "1",
-                  "--out", str(full_disk / "m.csv")]):
+                  "--out", str(full_disk / "m.csv")],
+                 ["preview", str(SMALL), "--out", str(full_disk / "pv")],
+                 ["diagnose", "--plan", str(small_plan), "--program", "GOLD_A", "--measured",
+                  str(measured), "--json", str(full_disk / "d.json"), "--pictures",
+                  str(full_disk / "pics")]):
         (full_disk / "filler").write_bytes(b"")
         with open(full_disk / "filler", "wb") as fh:  # leave almost nothing free
             try:
