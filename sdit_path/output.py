@@ -119,6 +119,18 @@ def _allowed_files(out: Path, command: str) -> set[str] | None:
     return None
 
 
+def _marker_command(out: Path) -> str | None:
+    """The command named by ``out``'s marker, or None."""
+    try:
+        data = json.loads((out / MARKER).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    if isinstance(data, dict) and data.get("written_by") == "sdit-path":
+        command = data.get("command")
+        return command if isinstance(command, str) else None
+    return None
+
+
 def _first_foreign(out: Path, allowed: set[str] | None) -> str | None:
     for root, dirs, names in os.walk(out):
         dirs.sort()
@@ -166,6 +178,11 @@ def check_output(out_dir: str | os.PathLike, force: bool, command: str,
             if not force:
                 raise OutputError(f"{out_dir}: directory is not empty; pass --force to replace "
                                   f"an earlier sdit-path {command} output")
+            other = _marker_command(out)
+            if other is not None and other != command:
+                raise OutputError(f"{out_dir}: holds an output of sdit-path {other}; --force "
+                                  f"replaces only an earlier {command} output (choose another "
+                                  f"--out)")
             foreign = _first_foreign(out, _allowed_files(out, command))
             if foreign is not None:
                 raise OutputError(

@@ -85,7 +85,8 @@ def test_refuses_non_empty_dir_and_force_never_deletes_foreign_files(tmp_path, p
     # preview refuses to replace a plan
     (out / "notes.txt").unlink()
     r = run("preview", "--out", str(out), "--force", "-q")
-    assert r.returncode == 5 and "which sdit-path preview did not write" in r.stderr
+    assert r.returncode == 5 and "holds an output of sdit-path plan; --force replaces only " \
+        "an earlier preview output" in r.stderr
     assert (out / "plan.json").is_file()
 
 
