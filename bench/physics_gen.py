@@ -1,0 +1,351 @@
+"""An independent generator of measured ballbar recordings, for blind checks.
+
+It shares no model code with what it checks: nothing from ``sdit_path`` is imported.
+It reads a plan directory as data (``config.toml`` with ``tomllib``, the timed
+trajectory with pandas), has its own forward kinematics (product of exponentials over
+the chains the config describes), its own effect models acting on the machine axes,
+and its own instrument.  Magnitudes come from the domain brief's table ("typical (bad)").
+
+Effects (physics, not the diagnoser's compact models):
+
+- servo lag: every linear axis follows its command through a first-order lag; equal
+  lags (``servo_lag``) or different ones (``servo_mismatch``);
+- backlash: a play operator on one axis (the axis stands after a reversal until the
+  command has taken up the play);
+- reversal_spike: after each reversal of one axis, a pulse that rises over a few ms
+  (friction breakaway through the velocity loop) and decays over tens of ms;
+- stick_slip: while an axis crawls, it sticks (lags further behind its command) until
+  the spring force breaks the static friction, then slips forward past the command;
+- scale_mismatch, squareness, cyclic_error: position-locked geometry;
+- vibration: a structural mode of one axis excited by its acceleration, seen along the
+  bar;
+- thermal_drift: the spindle walks away from the pivot linearly in time;
+- contour_smoothing: the control's zero-phase path smoothing (passes through stops);
+- setup: the pivot and tool ball centring, always present (a set-up residual), plus a
+  bar length offset.
+
+Instrument: starts 1-20 s before the program, own clock (+-150 ppm), gain +-0.3 %,
+noise 0.1-0.3 um, 0.1 um steps, dropout bursts.
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+EFFECTS = ("servo_lag", "servo_mismatch", "backlash", "reversal_spike", "stick_slip",
+           "scale_mismatch", "squareness", "cyclic_error", "vibration", "thermal_drift",
+           "contour_smoothing")
+_DIR = {"X": (1, 0, 0), "Y": (0, 1, 0), "Z": (0, 0, 1), "A": (1, 0, 0), "B": (0, 1, 0),
+        "C": (0, 0, 1)}
+
+
+# --------------------------------------------------------------------------- plan data
+
+@dataclass
+class PlanData:
+    names: list[str]            # axis names in chain order (workpiece then tool)
+    rotary: list[bool]
+    directions: np.ndarray      # (k, 3)
+    points: np.ndarray          # (k, 3)
+    workpiece: list[str]
+    tool: list[str]
+    tool_offset: np.ndarray     # ball relative to the gauge point, every axis at 0
+    pivot: np.ndarray
+    length_mm: float
+    t: np.ndarray               # program time
+    q: np.ndarray               # (n, k) commanded axes, mm and rad
+    phase: np.ndarray
+    duration_s: float
+
+
+def load(plan_dir: str | Path, program: str) -> PlanData:
+    d = Path(plan_dir)
+    cfg = tomllib.loads((d / "config.toml").read_text(encoding="utf-8"))
+    manifest = json.loads((d / "plan.json").read_text(encoding="utf-8"))
+    entry = next(p for p in manifest["programs"] if p["name"] == program)
+    raw = (d / entry["trajectory"]).read_bytes()
+    if entry["trajectory"].endswith(".gz"):
+        raw = gzip.decompress(raw)
+    import pandas as pd
+
+    df = pd.read_csv(io.BytesIO(raw), comment="#", dtype={"segment": str, "phase": str},
+                     keep_default_na=False)
+    m = cfg["machine"]
+    work = list(m.get("workpiece_chain", ["X", "Y"]))
+    tool = list(m.get("tool_chain", ["Z"]))
+    names, rot, dirs, pts, cols = [], [], [], [], []
+    for name in work + tool:
+        a = m["axes"][name]
+        is_rot = a.get("type", "rotary" if name in "ABC" else "linear") == "rotary"
+        default = np.array(_DIR[name], float)
+        if not is_rot and name in work:
+            default = -default
+        v = np.array(a.get("direction", default), float)
+        dirs.append(v / np.linalg.norm(v))
+        pts.append(np.array(a.get("point_mm", [0, 0, 0]), float))
+        names.append(name)
+        rot.append(is_rot)
+        col = df[f"axis_{name}_{'deg' if is_rot else 'mm'}"].to_numpy(float)
+        cols.append(np.radians(col) if is_rot else col)
+    sd = np.array(m.get("spindle_direction", [0, 0, 1]), float)
+    sd /= np.linalg.norm(sd)
+    b = cfg["ballbar"]
+    return PlanData(names, rot, np.array(dirs), np.array(pts), work, tool,
+                    -float(m.get("tool_length_mm", 0.0)) * sd, np.array(b["pivot_mm"], float),
+                    float(b["bar_length_mm"]), df["t_s"].to_numpy(float), np.column_stack(cols),
+                    df["phase"].to_numpy(object), float(entry["cycle_time_s"]))
+
+
+# --------------------------------------------------------------------------- kinematics
+
+def _rot(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotations about the unit ``axis`` (Rodrigues)."""
+    x, y, z = axis
+    K = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]], float)
+    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
+    return np.eye(3) + s * K + (1 - c) * (K @ K)
+
+
+def _chain(pd_: PlanData, q: np.ndarray, which: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """(R, p) with x_bed = R x_body + p for the body at the end of ``which``."""
+    n = len(q)
+    R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    p = np.zeros((n, 3))
+    for name in which:
+        j = pd_.names.index(name)
+        if pd_.rotary[j]:
+            Rj = _rot(pd_.directions[j], q[:, j])
+            pj = pd_.points[j] - Rj @ pd_.points[j]
+        else:
+            Rj = np.broadcast_to(np.eye(3), (n, 3, 3))
+            pj = q[:, j, None] * pd_.directions[j]
+        p = p + np.einsum("nij,nj->ni", R, pj)
+        R = R @ Rj
+    return R, p
+
+
+def ball_in_table(pd_: PlanData, q: np.ndarray) -> np.ndarray:
+    """Ball centre in the table frame for axis values ``q (n, k)`` (mm, rad)."""
+    Rt, pt = _chain(pd_, q, pd_.tool)
+    ball_bed = np.einsum("nij,j->ni", Rt, pd_.tool_offset) + pt
+    Rw, pw = _chain(pd_, q, pd_.workpiece)
+    return np.einsum("nji,nj->ni", Rw, ball_bed - pw)
+
+
+# --------------------------------------------------------------------------- effects
+
+def _first_order(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
+    """Exact discretisation of a first-order lag, started at rest at x[0]."""
+    if tau <= 0:
+        return x.copy()
+    from scipy.signal import lfilter
+
+    a = math.exp(-dt / tau)
+    y, _ = lfilter([1 - a], [1, -a], x, zi=[a * x[0]])
+    return y
+
+
+def _play(x: np.ndarray, width: float) -> np.ndarray:
+    """Play operator: the output follows only once the input has crossed the play."""
+    out = np.empty_like(x)
+    y = x[0]
+    h = width / 2
+    for i, v in enumerate(x):
+        if v - y > h:
+            y = v - h
+        elif y - v > h:
+            y = v + h
+        out[i] = y
+    return out
+
+
+def _reversals(v: np.ndarray, t: np.ndarray, threshold: float) -> list[tuple[int, float]]:
+    """Indices where the velocity changes sign (ignoring crawls below ``threshold``)
+    and the new sign."""
+    s = np.where(v > threshold, 1, np.where(v < -threshold, -1, 0))
+    out, last = [], 0
+    for i in np.flatnonzero(s):
+        if last and s[i] != last:
+            out.append((int(i), float(s[i])))
+        last = s[i]
+    return out
+
+
+@dataclass
+class Case:
+    effect: str
+    params: dict
+    excited: bool = True
+    notes: dict = field(default_factory=dict)
+
+
+def draw(effect: str, rng: np.random.Generator, pd_: PlanData) -> Case:
+    lin = [n for n, r in zip(pd_.names, pd_.rotary) if not r]
+    u = lambda a, b: float(rng.uniform(a, b))  # noqa: E731
+    sgn = lambda: float(rng.choice([-1, 1]))  # noqa: E731
+    if effect == "servo_lag":
+        return Case(effect, {"tau_ms": u(20, 40)})
+    if effect == "servo_mismatch":
+        a, b = rng.choice(lin, 2, replace=False)
+        return Case(effect, {"axis": str(a), "other": str(b), "tau_ms": u(15, 35),
+                             "mismatch_ms": sgn() * u(1.0, 3.0)})
+    if effect == "backlash":
+        return Case(effect, {"axis": str(rng.choice(lin)), "play_um": u(4, 12)})
+    if effect == "reversal_spike":
+        return Case(effect, {"axis": str(rng.choice(lin)), "height_um": u(5, 12),
+                             "rise_ms": u(2, 6), "tau_ms": u(15, 40)})
+    if effect == "stick_slip":
+        return Case(effect, {"axis": str(rng.choice(lin)), "amplitude_um": u(1.0, 3.0),
+                             "crawl_mm_per_s": 200 / 60})
+    if effect == "scale_mismatch":
+        return Case(effect, {"axis": str(rng.choice(lin)), "um_per_m": sgn() * u(20, 60)})
+    if effect == "squareness":
+        return Case(effect, {"pair": str(rng.choice(["XY", "XZ", "YZ"])),
+                             "urad": sgn() * u(20, 80)})
+    if effect == "cyclic_error":
+        return Case(effect, {"axis": str(rng.choice(lin)), "pitch_mm": u(5, 20),
+                             "amplitude_um": u(0.8, 2.0), "phase": u(0, 2 * math.pi)})
+    if effect == "vibration":
+        return Case(effect, {"axis": str(rng.choice(lin)), "frequency_hz": u(20, 120),
+                             "damping": u(0.02, 0.08), "gain_um_per_m_s2": u(1.0, 4.0)})
+    if effect == "thermal_drift":
+        v = rng.normal(size=3)
+        v *= u(15, 40) / np.linalg.norm(v)
+        return Case(effect, {"um_per_h": [float(x) for x in v]})
+    if effect == "contour_smoothing":
+        return Case(effect, {"sigma_ms": u(10, 25)})
+    raise ValueError(effect)
+
+
+def apply(case: Case | None, pd_: PlanData, rng: np.random.Generator
+          ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Actual axes ``(n, k)``, an extra ball displacement in the table frame ``(n, 3)``
+    (mm) and the following delay the effect adds (s)."""
+    q = pd_.q.copy()
+    t = pd_.t
+    dt = float(np.median(np.diff(t)))
+    extra = np.zeros((len(t), 3))
+    delay = 0.0
+    if case is None:
+        return q, extra, delay
+    P = case.params
+    idx = {n: i for i, n in enumerate(pd_.names)}
+    e = case.effect
+    if e == "servo_lag":
+        for j, r in enumerate(pd_.rotary):
+            q[:, j] = _first_order(q[:, j], dt, P["tau_ms"] * 1e-3)
+        delay = P["tau_ms"] * 1e-3
+    elif e == "servo_mismatch":
+        for j, r in enumerate(pd_.rotary):
+            tau = P["tau_ms"] + (P["mismatch_ms"] if pd_.names[j] == P["axis"] else 0.0)
+            q[:, j] = _first_order(q[:, j], dt, tau * 1e-3)
+        delay = (P["tau_ms"] + max(P["mismatch_ms"], 0.0)) * 1e-3
+    elif e == "backlash":
+        j = idx[P["axis"]]
+        q[:, j] = _play(q[:, j], P["play_um"] * 1e-3)
+    elif e == "reversal_spike":
+        j = idx[P["axis"]]
+        v = np.gradient(q[:, j], t)
+        pulse = np.zeros(len(t))
+        rise, tau = P["rise_ms"] * 1e-3, P["tau_ms"] * 1e-3
+        for i, s in _reversals(v, t, 0.05):
+            tt = t[i:i + int(8 * tau / dt)] - t[i]
+            pulse[i:i + len(tt)] -= s * P["height_um"] * 1e-3 * (1 - np.exp(-tt / rise)) * np.exp(-tt / tau)
+        q[:, j] += pulse
+        case.excited = bool(_reversals(v, t, 0.05))
+    elif e == "stick_slip":
+        j = idx[P["axis"]]
+        v = np.gradient(q[:, j], t)
+        crawl = (np.abs(v) > 1e-4) & (np.abs(v) < P["crawl_mm_per_s"])
+        lag, out = 0.0, np.zeros(len(t))
+        amp = P["amplitude_um"] * 1e-3
+        for i in range(len(t)):
+            if crawl[i]:
+                lag += abs(v[i]) * dt  # stuck: the command runs on
+                if lag >= amp:
+                    lag = -0.3 * amp  # slip: jumps forward, past the command
+            else:
+                lag *= 0.9  # moving freely, the error settles
+            out[i] = -np.sign(v[i]) * lag
+        q[:, j] += out
+        case.excited = bool(crawl.sum() * dt > 1.0)
+    elif e == "scale_mismatch":
+        j = idx[P["axis"]]
+        q[:, j] += P["um_per_m"] * 1e-6 * (q[:, j] - q[0, j])
+    elif e == "cyclic_error":
+        j = idx[P["axis"]]
+        q[:, j] += P["amplitude_um"] * 1e-3 * np.sin(2 * math.pi * q[:, j] / P["pitch_mm"] + P["phase"])
+    elif e == "squareness":
+        a, b = P["pair"]
+        pos = ball_in_table(pd_, pd_.q)
+        ia, ib = "XYZ".index(a), "XYZ".index(b)
+        extra[:, ia] += P["urad"] * 1e-6 * (pos[:, ib] - pos[0, ib])
+    elif e == "vibration":
+        j = idx[P["axis"]]
+        acc = np.gradient(np.gradient(q[:, j], t), t) * 1e-3  # m/s^2
+        w = 2 * math.pi * P["frequency_hz"]
+        zeta = P["damping"]
+        from scipy.signal import cont2discrete, lfilter
+
+        num, den = [w * w], [1, 2 * zeta * w, w * w]
+        b, a, _ = cont2discrete((num, den), dt, method="bilinear")
+        x = lfilter(np.ravel(b), a, acc) * P["gain_um_per_m_s2"] * 1e-3
+        q[:, j] += x
+    elif e == "thermal_drift":
+        extra += np.outer(t / 3600.0, np.array(P["um_per_h"]) * 1e-3)
+    elif e == "contour_smoothing":
+        from scipy.ndimage import gaussian_filter1d
+
+        s = P["sigma_ms"] * 1e-3 / dt
+        for j in range(q.shape[1]):
+            q[:, j] = gaussian_filter1d(q[:, j], s, mode="nearest")
+    return q, extra, delay
+
+
+# --------------------------------------------------------------------------- recording
+
+def record(pd_: PlanData, case: Case | None, seed: int) -> tuple[str, dict]:
+    """CSV text of a measured recording and the truth (never written into the CSV)."""
+    rng = np.random.default_rng(seed)
+    q, extra, delay = apply(case, pd_, rng)
+    ball = ball_in_table(pd_, q) + extra
+    centring = rng.normal(size=3)
+    centring *= rng.uniform(3, 20) / np.linalg.norm(centring) * 1e-3  # set-up residual, mm
+    dL = rng.uniform(-5, 5) * 1e-3
+    reading_prog = (np.linalg.norm(ball - (pd_.pivot + centring), axis=1) - pd_.length_mm - dL) * 1e3
+    nominal = (np.linalg.norm(ball_in_table(pd_, pd_.q) - pd_.pivot, axis=1) - pd_.length_mm) * 1e3
+    lead = float(rng.uniform(1, 20))
+    tail = float(rng.uniform(1, 10))
+    ppm = float(rng.uniform(-150, 150))
+    gain = 1 + float(rng.uniform(-0.003, 0.003))
+    noise = float(rng.uniform(0.1, 0.3))
+    rate = 1000.0
+    # instrument samples at its own clock: t_m = (tau + lead) * (1 + ppm 1e-6)
+    n_m = int((lead + pd_.duration_s + tail) * (1 + ppm * 1e-6) * rate)
+    t_m = np.arange(n_m) / rate
+    tau = t_m / (1 + ppm * 1e-6) - lead
+    y = np.interp(tau, pd_.t, reading_prog)  # standing at the first/last pose outside
+    y = gain * y + rng.normal(0, noise, n_m)
+    y = np.round(y / 0.1) * 0.1
+    drop = np.zeros(n_m, bool)
+    for _ in range(int(rng.integers(0, 6))):
+        s0 = int(rng.integers(0, n_m))
+        drop[s0:s0 + int(rng.integers(1, 200))] = True
+    lines = ["# source: independent physics generator", "t_s,delta_l_um"]
+    lines += [f"{a:.4f}," + ("" if d else f"{b:.1f}") for a, b, d in zip(t_m, y, drop)]
+    truth = {"effect": case.effect if case else None, "params": case.params if case else {},
+             "excited": case.excited if case else False,
+             "offset_s": lead * (1 + ppm * 1e-6), "clock_ppm": ppm,
+             "following_delay_s": delay, "gain": gain, "noise_um": noise,
+             "centring_um": [float(c * 1e3) for c in centring], "bar_offset_um": dL * 1e3,
+             "nominal_rms_um": float(np.sqrt(np.mean(nominal ** 2))),
+             "effect_rms_um": float(np.std(reading_prog))}
+    return "\n".join(lines) + "\n", truth
