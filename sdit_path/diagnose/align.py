@@ -146,6 +146,28 @@ def _fit_rms(X, t, tm, yy, offset_s, k):
     return float(np.sqrt(np.mean(r * r))), tau, Xs, beta
 
 
+def _timing_std(J: np.ndarray, r: np.ndarray) -> tuple[float, float]:
+    """Standard uncertainties of the last two columns of ``J`` (offset in s, clock in
+    ppm) with the model columns before them projected out (rank-revealing, so that
+    redundant model columns cannot make them singular), the residual variance inflated
+    by the residual's correlation in time (an effective sample count), so that a
+    structured residual does not pass as thousands of independent samples.  Timing
+    the data cannot see at all gets a bound, not infinity: 1 s and 1000 ppm."""
+    U, sv, _ = np.linalg.svd(J[:, :-2], full_matrices=False)
+    U = U[:, sv > sv[0] * 1e-10] if len(sv) and sv[0] > 0 else U[:, :0]
+    G = J[:, -2:] - U @ (U.T @ J[:, -2:])
+    n = len(r)
+    rho = float(np.clip(np.corrcoef(r[:-1], r[1:])[0, 1], 0.0, 0.999)) if n > 2 else 0.0
+    var = float(np.mean(r * r)) * (1 + rho) / (1 - rho)
+    M = G.T @ G
+    bounds = (1.0, 1000.0)
+    try:
+        cov = np.linalg.inv(M) * var
+        return tuple(float(min(np.sqrt(max(cov[i, i], 0.0)), b)) for i, b in enumerate(bounds))
+    except np.linalg.LinAlgError:
+        return bounds
+
+
 def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s: float,
            ppm: float, ppm_limit: float = 200.0, iterations: int = 8,
            max_samples: int = 300_000, max_step_s: float = 0.05) -> Alignment:
@@ -159,7 +181,7 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
     t = ctx.t_s
     T = t[-1]
     k = ppm * 1e-6
-    kmax = 1.1 * ppm_limit * 1e-6
+    kmax = ppm_limit * 1e-6
     std = (np.inf, np.inf)
     rms, tau, Xs, beta = _fit_rms(X, t, tm, yy, offset_s, k)
     for _ in range(iterations):
@@ -171,11 +193,7 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
         J = np.column_stack([Xs, -fd * inside / (1 + k), -fd * tau * inside / (1 + k) * 1e-6])
         sol, *_ = np.linalg.lstsq(J, yy, rcond=None)
         r = yy - Xs @ beta
-        try:
-            cov = np.linalg.inv(J.T @ J) * float(np.mean(r * r))
-            std = (float(np.sqrt(max(cov[-2, -2], 0.0))), float(np.sqrt(max(cov[-1, -1], 0.0))))
-        except np.linalg.LinAlgError:
-            pass
+        std = _timing_std(J, r)
         d_off = float(np.clip(sol[-2], -max_step_s, max_step_s))
         d_k = float(sol[-1]) * 1e-6
         for _half in range(6):

@@ -194,6 +194,12 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
             f.runner_up = earlier[f.effect].runner_up
             f.runner_up_ratio = earlier[f.effect].runner_up_ratio
             _confidence(f)
+    if timing_is_weak(result.alignment):
+        # effects read through their timing (a lag of milliseconds) cannot be named
+        # with confidence when the recording's timing is this uncertain
+        for f in result.findings:
+            if f.effect in TIME_LOCKED and f.confidence == "high":
+                f.confidence = "medium"
     result.program = program
     entry = next((p for p in plan.manifest.get("programs", []) if p["name"] == program), {})
     result.gap["where"] = {"layer": entry.get("layer", ""), **result.gap["where"]}
@@ -451,6 +457,16 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                       "idx": series_idx, "held": held[allsel]})
 
 
+#: Effects whose signal is read through timing at the millisecond level.
+TIME_LOCKED = ("servo_lag", "servo_mismatch", "contour_smoothing", "vibration",
+               "reversal_spike", "stick_slip")
+
+
+def timing_is_weak(al: Alignment, offset_s: float = 0.002, clock_ppm: float = 5.0) -> bool:
+    """The recording's timing is known worse than ``offset_s`` or ``clock_ppm``."""
+    return not (al.offset_std_s <= offset_s and al.clock_std_ppm <= clock_ppm)
+
+
 def _confidence(f: Finding) -> None:
     """high: it holds on held-out segments and nothing else explains it as well;
     medium: a mimic or a close runner-up, or weaker on held-out data; low: barely
@@ -458,7 +474,7 @@ def _confidence(f: Finding) -> None:
     ex_tr = f.rms_before_um ** 2 - f.rms_after_um ** 2
     ex_ho = f.heldout_rms_before_um ** 2 - f.heldout_rms_after_um ** 2
     generalises = ex_ho / ex_tr if ex_tr > 0 else 0.0
-    close = bool(f.mimics and f.mimics[0]["r2"] >= 0.95) or f.runner_up_ratio < 1.1
+    close = bool(f.mimics) or f.runner_up_ratio < 1.1  # the README's rule: no mimic
     f.confidence = ("high" if generalises >= 0.5 and not close and not f.geometry_doubt else
                     "medium" if generalises >= 0.25 else "low")
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from .context import Context
-from .diagnose import Diagnosis
+from .diagnose import Diagnosis, timing_is_weak
 from .effects import EFFECT_NAMES
 
 
@@ -32,6 +32,7 @@ def to_json(d: Diagnosis) -> dict:
         "program": d.program,
         "alignment": {"offset_s": al.offset_s, "clock_ppm": al.clock_ppm,
                       "offset_std_s": al.offset_std_s, "clock_std_ppm": al.clock_std_ppm,
+                      "timing_weak": timing_is_weak(al),
                       "note": "measured t = offset_s + program t * (1 + clock_ppm 1e-6); a "
                               "following delay of the machine is part of the offset"},
         "samples": d.samples,
@@ -64,7 +65,10 @@ def summary_text(d: Diagnosis) -> str:
              f"{d.samples['heldout']} held out (every third stretch).",
              f"Alignment: program starts at {al.offset_s:.4f} s of the recording "
              f"(+- {al.offset_std_s * 1e3:.2f} ms), instrument clock {al.clock_ppm:+.1f} ppm "
-             f"(+- {al.clock_std_ppm:.1f}).",
+             f"(+- {al.clock_std_ppm:.1f})." + (
+                 " The recording holds little timing information: effects read through "
+                 "their timing (lag, smoothing, vibration, spikes) are named with at most "
+                 "medium confidence." if timing_is_weak(al) else ""),
              f"Gap (measured - simulated): RMS {d.gap['rms_um']:.3f} um, max |gap| "
              f"{d.gap['max_abs_um']:.3f} um; sensor noise about {d.noise_um:.3f} um."]
     w = d.gap["where"]
