@@ -208,7 +208,71 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
         rms, tau, Xs, beta = trial
         if abs(d_off) < 1e-6 and abs(d_k) < 1e-8:
             break
+    std = _consistency(X, t, tm, yy, offset_s, k, std)
     return Alignment(offset_s, k * 1e6, std[0], std[1], rms)
+
+
+def _window_shift(tw: np.ndarray, t: np.ndarray, X: np.ndarray, yw: np.ndarray,
+                  shifts: np.ndarray) -> tuple[float, float]:
+    """Best time shift of one stretch (program time ``tw - shift``) and its standard
+    uncertainty from the curvature of the residual (infinite where the residual is
+    flat or the best shift lies at the edge of the search)."""
+    rss = np.empty(len(shifts))
+    for i, d in enumerate(shifts):
+        A = _at(t, X, tw - d)
+        beta, *_ = np.linalg.lstsq(A, yw, rcond=None)
+        r = yw - A @ beta
+        rss[i] = float(r @ r)
+    j = int(np.argmin(rss))
+    if not 0 < j < len(rss) - 1:
+        return float(shifts[j]), np.inf
+    h = float(shifts[1] - shifts[0])
+    den = rss[j - 1] - 2 * rss[j] + rss[j + 1]
+    if den <= 0:
+        return float(shifts[j]), np.inf
+    var = rss[j] / max(len(yw) - X.shape[1] - 1, 1)
+    frac = 0.5 * (rss[j - 1] - rss[j + 1]) / den
+    return float(shifts[j] + frac * h), float(np.sqrt(2 * var * h * h / den))
+
+
+def _consistency(X: np.ndarray, t: np.ndarray, tm: np.ndarray, yy: np.ndarray,
+                 offset_s: float, k: float, std: tuple[float, float], windows: int = 8,
+                 half_s: float = 0.1, step_s: float = 0.002, per_window: int = 6000
+                 ) -> tuple[float, float]:
+    """Uncertainties that also hold when the model misses something.
+
+    The program is cut into ``windows`` stretches and each one's time shift is searched
+    on its own.  A model that explains the recording puts every stretch at shift 0
+    within its noise; unmodelled effects pull stretches apart, or all of them off the
+    global alignment.  A straight line through the shifts (weighted, in program time)
+    measures both: its scatter scales its own uncertainty, and its value at 0 and its
+    slope - how far the stretches say the global offset and clock are off - are added
+    to the uncertainties (never subtracted: a stated uncertainty only grows)."""
+    tau = (tm - offset_s) / (1 + k)
+    edges = np.linspace(t[0], t[-1], windows + 1)
+    grid = np.arange(-half_s, half_s + step_s / 2, step_s)
+    c, d, sd = [], [], []
+    for a, b in zip(edges[:-1], edges[1:]):
+        sel = np.flatnonzero((tau >= a + half_s) & (tau < b - half_s))
+        if len(sel) < 100:
+            continue
+        sel = sel[:: max(1, len(sel) // per_window)]
+        shift, s = _window_shift(tau[sel], t, X, yy[sel], grid)
+        if np.isfinite(s):
+            c.append(0.5 * (a + b))
+            d.append(shift)
+            sd.append(max(s, 1e-5))
+    if len(d) < 3:
+        return std
+    c, d, w = np.array(c), np.array(d), 1.0 / np.array(sd) ** 2
+    A = np.column_stack([np.ones(len(c)), c])
+    cov = np.linalg.pinv(A.T @ (A * w[:, None]))
+    coef = cov @ (A.T @ (w * d))
+    chi2 = float(np.sum(w * (d - A @ coef) ** 2)) / max(len(d) - 2, 1)
+    scale = max(1.0, chi2)
+    off = float(np.sqrt(std[0] ** 2 + cov[0, 0] * scale + coef[0] ** 2))
+    clk = float(np.sqrt(std[1] ** 2 + (cov[1, 1] * scale + coef[1] ** 2) * 1e12))
+    return min(off, 1.0), min(clk, 1000.0)
 
 
 def check_span(span_s: float, program_s: float, ppm_limit: float = 200.0) -> None:
