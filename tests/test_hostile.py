@@ -139,8 +139,11 @@ def test_user_text_never_reaches_a_controller_as_something_it_acts_on(tmp_path):
                 "AXIS,stop", "ABORT,now"]
     cfg_dir = tmp_path / "cfg"
     cfg_dir.mkdir()
-    for k, payload in enumerate(payloads):
+    for k in range(0, len(payloads), 2):  # two payloads a plan: the comment and the name
+        payload = payloads[k]
         t = text.replace("[post]", f"[post]\ncomment = {json.dumps(payload)}", 1)
+        t = t.replace('name = "中文 Fräse ', 'name = ' + json.dumps("中文 Fräse " + payloads[k + 1])[:-1]
+                      + " ", 1)
         cfg = cfg_dir / f"p{k}.toml"
         cfg.write_text(t, encoding="utf-8")
         out = tmp_path / f"o{k}"
