@@ -6,6 +6,7 @@ that file alone, and only then is its alignment compared with the truth the gene
 kept: offset error against the following delay + 2 ms, clock error against 5 ppm.
 
     python bench/align_check.py --plan P --program SDIT_C [--cases 24] [--seed 1] [--jobs 2]
+    python bench/align_check.py --plan P --program SDIT_C --probe 0   # timing information
 """
 
 from __future__ import annotations
@@ -46,6 +47,32 @@ def one(plan: str, program: str, pd_, k: int, seed: int) -> dict:
             "findings": [(f["effect"], f["confidence"]) for f in rep["findings"]]}
 
 
+def probe(plan: str, program: str, pd_, k: int, seed: int) -> None:
+    """How much timing information case ``k`` holds: the residual RMS of the
+    diagnoser's generic alignment model at the true alignment and shifted from it."""
+    from sdit_path.diagnose.align import _fit_rms, generic_columns
+    from sdit_path.diagnose.context import build_context
+    from sdit_path.planfiles import load_plan
+
+    rng = np.random.default_rng([seed, k])
+    kinds = (None,) + gen.EFFECTS
+    effect = kinds[k % len(kinds)]
+    case = gen.draw(effect, rng, pd_) if effect else None
+    text, truth = gen.record(pd_, case, seed * 1000 + k)
+    data = np.genfromtxt(text.splitlines()[2:], delimiter=",")
+    t_m, y = data[:, 0], data[:, 1]
+    ctx = build_context(load_plan(plan), program)
+    X = generic_columns(ctx, np.zeros(ctx.n))
+    sel = np.flatnonzero(np.isfinite(y))[::5]
+    off, kk = truth["offset_s"], truth["clock_ppm"] * 1e-6
+    print(f"case {k} ({effect or 'clean'}): noise {truth['noise_um']:.3f} um, centring "
+          f"{[round(c, 1) for c in truth['centring_um']]} um")
+    for d_ms, d_ppm in ((0, 0), (-20, 0), (-2, 0), (2, 0), (20, 0), (0, -20), (0, 20)):
+        rms = _fit_rms(X, ctx.t_s, t_m[sel], y[sel], off + d_ms * 1e-3, kk + d_ppm * 1e-6)[0]
+        print(f"  offset {d_ms:+4d} ms, clock {d_ppm:+4d} ppm from the truth: residual RMS "
+              f"{rms:.6f} um")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--plan", required=True)
@@ -54,8 +81,13 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--probe", type=int, default=None,
+                    help="Only print how much timing information case K holds.")
     args = ap.parse_args()
     pd_ = gen.load(args.plan, args.program)
+    if args.probe is not None:
+        probe(args.plan, args.program, pd_, args.probe, args.seed)
+        return
     with ThreadPoolExecutor(args.jobs) as pool:
         results = list(pool.map(lambda k: one(args.plan, args.program, pd_, k, args.seed),
                                 range(args.cases)))

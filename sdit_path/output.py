@@ -90,14 +90,9 @@ def _recover(out: Path) -> None:
 def _allowed_files(out: Path, command: str) -> set[str] | None:
     """Files an earlier output of ``command`` wrote into ``out`` (relative POSIX paths),
     or None when ``out`` does not hold one."""
-    marker = out / MARKER
-    if marker.is_file() and not marker.is_symlink():
-        try:
-            data = json.loads(marker.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-            return None
-        if (isinstance(data, dict) and data.get("written_by") == "sdit-path"
-                and data.get("command") == command and isinstance(data.get("files"), list)
+    data = _read_marker(out)
+    if data is not None:
+        if (data.get("command") == command and isinstance(data.get("files"), list)
                 and all(isinstance(f, str) for f in data["files"])):
             return set(data["files"]) | {MARKER}
         return None
@@ -119,16 +114,23 @@ def _allowed_files(out: Path, command: str) -> set[str] | None:
     return None
 
 
+def _read_marker(out: Path) -> dict | None:
+    """``out``'s marker: None when there is none, {} when the file is there but is not
+    an sdit-path marker."""
+    marker = out / MARKER
+    if not marker.is_file() or marker.is_symlink():
+        return None
+    try:
+        data = json.loads(marker.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return {}
+    return data if isinstance(data, dict) and data.get("written_by") == "sdit-path" else {}
+
+
 def _marker_command(out: Path) -> str | None:
     """The command named by ``out``'s marker, or None."""
-    try:
-        data = json.loads((out / MARKER).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return None
-    if isinstance(data, dict) and data.get("written_by") == "sdit-path":
-        command = data.get("command")
-        return command if isinstance(command, str) else None
-    return None
+    command = (_read_marker(out) or {}).get("command")
+    return command if isinstance(command, str) else None
 
 
 def _first_foreign(out: Path, allowed: set[str] | None) -> str | None:
