@@ -43,6 +43,10 @@ import numpy as np
 EFFECTS = ("servo_lag", "servo_mismatch", "backlash", "reversal_spike", "stick_slip",
            "scale_mismatch", "squareness", "cyclic_error", "vibration", "thermal_drift",
            "contour_smoothing")
+#: effects outside any compact library: a diagnosis should leave them unexplained
+GAPS = ("mount_slip", "guideway_bump", "cubic_straightness", "vibration_burst")
+#: effects that are functions of the pose (geometry), the rest are dynamics or time
+POSE_LOCKED = ("scale_mismatch", "squareness", "cyclic_error")
 _DIR = {"X": (1, 0, 0), "Y": (0, 1, 0), "Z": (0, 0, 1), "A": (1, 0, 0), "B": (0, 1, 0),
         "C": (0, 0, 1)}
 
@@ -222,6 +226,18 @@ def draw(effect: str, rng: np.random.Generator, pd_: PlanData) -> Case:
         return Case(effect, {"um_per_h": [float(x) for x in v]})
     if effect == "contour_smoothing":
         return Case(effect, {"sigma_ms": u(10, 25)})
+    if effect == "mount_slip":
+        v = rng.normal(size=3)
+        return Case(effect, {"at": u(0.3, 0.7), "shift_um": [float(x) for x in
+                                                             v * u(3, 8) / np.linalg.norm(v)]})
+    if effect in ("guideway_bump", "cubic_straightness"):
+        a, b = rng.choice(lin, 2, replace=False)
+        return Case(effect, {"axis": str(a), "across": str(b), "amplitude_um": sgn() * u(3, 8),
+                             "centre": u(0.2, 0.8), "width_mm": u(3, 10)})
+    if effect == "vibration_burst":
+        return Case(effect, {"axis": str(rng.choice(lin)), "at": u(0.2, 0.8),
+                             "frequency_hz": u(30, 150), "amplitude_um": u(2, 5),
+                             "decay_s": u(0.1, 0.3)})
     raise ValueError(effect)
 
 
@@ -301,6 +317,24 @@ def apply(case: Case | None, pd_: PlanData, rng: np.random.Generator
         q[:, j] += x
     elif e == "thermal_drift":
         extra += np.outer(t / 3600.0, np.array(P["um_per_h"]) * 1e-3)
+    elif e == "mount_slip":  # the pivot's magnetic mount gives way once
+        extra[t >= P["at"] * t[-1]] -= np.array(P["shift_um"]) * 1e-3
+    elif e in ("guideway_bump", "cubic_straightness"):  # straightness of one axis
+        j, k = idx[P["axis"]], idx[P["across"]]
+        x = q[:, j]
+        lo, hi = float(x.min()), float(x.max())
+        if e == "guideway_bump":
+            c = lo + P["centre"] * (hi - lo)
+            shape = np.exp(-0.5 * ((x - c) / P["width_mm"]) ** 2)
+        else:
+            shape = ((x - 0.5 * (lo + hi)) / max(0.5 * (hi - lo), 1e-9)) ** 3
+        q[:, k] += P["amplitude_um"] * 1e-3 * shape
+    elif e == "vibration_burst":  # a knock: a decaying ring of one axis
+        j = idx[P["axis"]]
+        t0 = P["at"] * t[-1]
+        after = np.maximum(t - t0, 0.0)
+        q[:, j] += (t >= t0) * P["amplitude_um"] * 1e-3 * np.sin(
+            2 * math.pi * P["frequency_hz"] * after) * np.exp(-after / P["decay_s"])
     elif e == "contour_smoothing":
         from scipy.ndimage import gaussian_filter1d
 
@@ -311,6 +345,27 @@ def apply(case: Case | None, pd_: PlanData, rng: np.random.Generator
 
 
 # --------------------------------------------------------------------------- recording
+
+def timing_bound(pd_: PlanData, reading: np.ndarray, ball: np.ndarray, centring: np.ndarray,
+                 effect: np.ndarray, noise_um: float, ppm: float) -> tuple[float, float]:
+    """Cramer-Rao bound (standard deviations) of the recording's offset (s) and clock
+    rate (ppm) from this reading: its own derivative against the noise, with what any
+    analysis must estimate alongside left free - a constant (bar length), the three
+    centring components, the instrument gain and the effect's amplitude.  No estimator
+    can be surer than this; a target tighter than a few times it cannot be met."""
+    t = pd_.t
+    dr = np.gradient(reading, t)
+    k = ppm * 1e-6
+    u = (ball - (pd_.pivot + centring)) / pd_.length_mm
+    J = np.column_stack([-dr / (1 + k), -dr * t / (1 + k) * 1e-6, np.ones(len(t)), u,
+                         reading, effect])
+    J = J[:, [0, 1] + [i for i in range(2, J.shape[1]) if np.ptp(J[:, i]) > 1e-9]]
+    U, sv, _ = np.linalg.svd(J[:, 2:], full_matrices=False)
+    U = U[:, sv > sv[0] * 1e-9]
+    G = J[:, :2] - U @ (U.T @ J[:, :2])
+    cov = np.linalg.pinv(G.T @ G) * noise_um ** 2
+    return float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))
+
 
 def record(pd_: PlanData, case: Case | None, seed: int) -> tuple[str, dict]:
     """CSV text of a measured recording and the truth (never written into the CSV)."""
@@ -341,12 +396,29 @@ def record(pd_: PlanData, case: Case | None, seed: int) -> tuple[str, dict]:
         drop[s0:s0 + int(rng.integers(1, 200))] = True
     lines = ["# source: independent physics generator", "t_s,delta_l_um"]
     lines += [f"{a:.4f}," + ("" if d else f"{b:.1f}") for a, b, d in zip(t_m, y, drop)]
+    clean = (np.linalg.norm(ball_in_table(pd_, pd_.q) - (pd_.pivot + centring), axis=1)
+             - pd_.length_mm - dL) * 1e3
+    # what the effect adds beyond a pure delay of the whole path (which no trace can tell
+    # from a later start): a lag shows only through its shape
+    common = case.params.get("tau_ms", 0.0) * 1e-3 if case and case.effect in (
+        "servo_lag", "servo_mismatch") else 0.0
+    visible = reading_prog - np.interp(pd_.t - common, pd_.t, clean)
+    visible = visible - np.median(visible)
+    # above the noise where it acts (a local effect is not diluted by the whole trace)
+    acts = np.abs(visible) > 0.1 * np.max(np.abs(visible)) if np.any(visible) else visible > 0
+    visible_rms = float(np.sqrt(np.mean(visible[acts] ** 2))) if acts.any() else 0.0
+    # timing is read from what the pose dictates (set-up, geometry): a dynamic effect's
+    # own timing (when a slip happens, how a lag develops) is not a clock
+    pose = reading_prog if case and case.effect in POSE_LOCKED else clean
+    crb = timing_bound(pd_, pose, ball, centring, reading_prog - pose, noise, ppm)
     truth = {"effect": case.effect if case else None, "params": case.params if case else {},
-             "excited": case.excited if case else False,
+             "excited": bool(case.excited and visible_rms >= noise) if case else False,
+             "visible_rms_um": visible_rms,
              "offset_s": lead * (1 + ppm * 1e-6), "clock_ppm": ppm,
              "following_delay_s": delay, "gain": gain, "noise_um": noise,
              "centring_um": [float(c * 1e3) for c in centring], "bar_offset_um": dL * 1e3,
              "nominal_rms_um": float(np.sqrt(np.mean(nominal ** 2))),
+             "offset_bound_s": crb[0], "clock_bound_ppm": crb[1],
              "effect_rms_um": float(np.std(reading_prog))}
     return "\n".join(lines) + "\n", truth
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import correlate
+import scipy.fft as sfft
 
 from ..errors import RecordingError
 from .context import Context
@@ -44,7 +44,8 @@ class Alignment:
         return self.offset_s + np.asarray(tau) * (1.0 + self.clock_ppm * 1e-6)
 
 
-def generic_columns(ctx: Context, expected_um: np.ndarray) -> np.ndarray:
+def generic_columns(ctx: Context, expected_um: np.ndarray, extra: np.ndarray | None = None
+                    ) -> np.ndarray:
     """``(n, m)`` on the trajectory grid: expected reading (if it varies), constant,
     bar direction, a smoothed motion indicator, -v^2/(2L), time, and a step at each
     reversal of every linear axis."""
@@ -56,7 +57,7 @@ def generic_columns(ctx: Context, expected_um: np.ndarray) -> np.ndarray:
     cols += [ctx.gain[:, j] * ctx.direction[:, j] for j in ctx.linear if j in ctx.observable]
     if np.ptp(expected_um) > 1e-3:
         cols.insert(0, expected_um)
-    X = np.column_stack(cols)
+    X = np.column_stack(cols + ([] if extra is None else [extra]))
     keep = [i for i in range(X.shape[1]) if i == 0 or np.ptp(X[:, i]) > 1e-9]
     return X[:, keep]
 
@@ -71,9 +72,10 @@ def _block_mean(x: np.ndarray, w: np.ndarray, edges: np.ndarray) -> tuple[np.nda
 
 
 def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
-           ppm_limit: float = 200.0, block_s: float = 0.1) -> tuple[float, float]:
+           ppm_limit: float = 200.0, block_s: float = 0.1, drift_s: float = 0.01
+           ) -> tuple[float, float]:
     """Best (offset_s, clock_ppm) on a grid: offsets at ``block_s``, rates at a step
-    that keeps the drift over the program under a block."""
+    that keeps the drift over the program under ``drift_s``."""
     T = ctx.duration_s
     dt_p = float(np.median(np.diff(ctx.t_s)))
     per = max(1, int(round(block_s / dt_p)))
@@ -86,11 +88,18 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     x0, xT = X[0], X[-1]
     valid = np.isfinite(y)
     yv = np.where(valid, y, 0.0)
-    step_ppm = max(1.0, 0.5 * block_s / max(T, 1e-9) * 1e6)
+    step_ppm = max(1.0, drift_s / max(T, 1e-9) * 1e6)
     rates = np.arange(-ppm_limit, ppm_limit + 0.5 * step_ppm, step_ppm)
     dt_m = float(np.median(np.diff(t_m)))
     best = (np.inf, 0.0, 0.0)
     m = X.shape[1]
+    # every correlation at once in the frequency domain; the program side is the same
+    # at every rate
+    n_max = int((t_m[-1] - t_m[0]) / (per * dt_p * (1 - ppm_limit * 1e-6))) + 1
+    nfft = sfft.next_fast_len(n_max + nb)
+    ia, ic = np.triu_indices(m)
+    Fx = np.conj(sfft.rfft(Xb, nfft, axis=0))
+    Fxx = np.conj(sfft.rfft(Xb[:, ia] * Xb[:, ic], nfft, axis=0))
     for ppm in rates:
         d = per * dt_p * (1 + ppm * 1e-6)  # one program block in instrument time
         n_m = int((t_m[-1] - t_m[0]) / d)
@@ -101,12 +110,12 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
         yb, wb = _block_mean(yv, valid.astype(float), edges_m)
         wb = wb / max(wb.max(), 1e-12)
         wy = wb * yb
-        b = np.stack([correlate(wy, Xb[:, a], mode="valid", method="fft") for a in range(m)], 1)
-        G = np.empty((len(b), m, m))
-        for a in range(m):
-            for c in range(a, m):
-                v = correlate(wb, Xb[:, a] * Xb[:, c], mode="valid", method="fft")
-                G[:, a, c] = G[:, c, a] = v
+        L = n_m - nb + 1
+        b = sfft.irfft(sfft.rfft(wy, nfft)[:, None] * Fx, nfft, axis=0)[:L]
+        g = sfft.irfft(sfft.rfft(wb, nfft)[:, None] * Fxx, nfft, axis=0)[:L]
+        G = np.empty((L, m, m))
+        G[:, ia, ic] = g
+        G[:, ic, ia] = g
         j = np.arange(len(b))
         cw = np.r_[0.0, np.cumsum(wb)]
         cwy = np.r_[0.0, np.cumsum(wy)]
@@ -138,10 +147,25 @@ def _at(t: np.ndarray, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
     return X[i] * (1 - f) + X[np.minimum(i + 1, len(t) - 1)] * f
 
 
+def _pinv_gram(G: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
+    """Pseudo-inverse of a Gram matrix (columns scaled to unit norm first, so that the
+    cut-off is about the columns' directions, not their units)."""
+    d = np.sqrt(np.maximum(np.diag(G), 1e-300))
+    w, V = np.linalg.eigh(G / np.outer(d, d))
+    keep = w > rcond * max(float(w[-1]), 1e-300)
+    return (V[:, keep] / w[keep]) @ V[:, keep].T / np.outer(d, d)
+
+
+def _lsq(A: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Least squares through the normal equations (rank-revealing): the same answer as
+    ``lstsq`` for the well-scaled, tall problems here, several times faster."""
+    return _pinv_gram(A.T @ A) @ (A.T @ y)
+
+
 def _fit_rms(X, t, tm, yy, offset_s, k):
     tau = np.clip((tm - offset_s) / (1 + k), t[0], t[-1])
     Xs = _at(t, X, tau)
-    beta, *_ = np.linalg.lstsq(Xs, yy, rcond=None)
+    beta = _lsq(Xs, yy)
     r = yy - Xs @ beta
     return float(np.sqrt(np.mean(r * r))), tau, Xs, beta
 
@@ -153,13 +177,11 @@ def _timing_std(J: np.ndarray, r: np.ndarray) -> tuple[float, float]:
     by the residual's correlation in time (an effective sample count), so that a
     structured residual does not pass as thousands of independent samples.  Timing
     the data cannot see at all gets a bound, not infinity: 1 s and 1000 ppm."""
-    U, sv, _ = np.linalg.svd(J[:, :-2], full_matrices=False)
-    U = U[:, sv > sv[0] * 1e-10] if len(sv) and sv[0] > 0 else U[:, :0]
-    G = J[:, -2:] - U @ (U.T @ J[:, -2:])
+    JJ = J.T @ J
     n = len(r)
     rho = float(np.clip(np.corrcoef(r[:-1], r[1:])[0, 1], 0.0, 0.999)) if n > 2 else 0.0
     var = float(np.mean(r * r)) * (1 + rho) / (1 - rho)
-    M = G.T @ G
+    M = JJ[-2:, -2:] - JJ[-2:, :-2] @ _pinv_gram(JJ[:-2, :-2]) @ JJ[:-2, -2:]
     bounds = (1.0, 1000.0)
     try:
         cov = np.linalg.inv(M) * var
@@ -170,7 +192,7 @@ def _timing_std(J: np.ndarray, r: np.ndarray) -> tuple[float, float]:
 
 def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s: float,
            ppm: float, ppm_limit: float = 200.0, iterations: int = 8,
-           max_samples: int = 300_000, max_step_s: float = 0.05) -> Alignment:
+           max_samples: int = 120_000, max_step_s: float = 0.05) -> Alignment:
     """Gauss-Newton on (offset, rate) with the linear model ``X`` at the full rate;
     a step that does not lower the residual is halved, the rate stays within
     ``ppm_limit`` (plus 10 %)."""
@@ -191,7 +213,7 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
         inside = (raw > t[0]) & (raw < T)
         # d tau / d offset = -1/(1+k); d tau / d k = -tau/(1+k)
         J = np.column_stack([Xs, -fd * inside / (1 + k), -fd * tau * inside / (1 + k) * 1e-6])
-        sol, *_ = np.linalg.lstsq(J, yy, rcond=None)
+        sol = _lsq(J, yy)
         r = yy - Xs @ beta
         std = _timing_std(J, r)
         d_off = float(np.clip(sol[-2], -max_step_s, max_step_s))
@@ -220,7 +242,7 @@ def _window_shift(tw: np.ndarray, t: np.ndarray, X: np.ndarray, yw: np.ndarray,
     rss = np.empty(len(shifts))
     for i, d in enumerate(shifts):
         A = _at(t, X, tw - d)
-        beta, *_ = np.linalg.lstsq(A, yw, rcond=None)
+        beta = _lsq(A, yw)
         r = yw - A @ beta
         rss[i] = float(r @ r)
     j = int(np.argmin(rss))
@@ -237,7 +259,7 @@ def _window_shift(tw: np.ndarray, t: np.ndarray, X: np.ndarray, yw: np.ndarray,
 
 def _consistency(X: np.ndarray, t: np.ndarray, tm: np.ndarray, yy: np.ndarray,
                  offset_s: float, k: float, std: tuple[float, float], windows: int = 8,
-                 half_s: float = 0.1, step_s: float = 0.002, per_window: int = 6000
+                 half_s: float = 0.1, step_s: float = 0.004, per_window: int = 3000
                  ) -> tuple[float, float]:
     """Uncertainties that also hold when the model misses something.
 
@@ -287,13 +309,21 @@ def check_span(span_s: float, program_s: float, ppm_limit: float = 200.0) -> Non
                              f"times in milliseconds?)")
 
 
+#: programs longer than this are searched globally with the generic columns only
+COARSE_ALL_COLUMNS_S = 1200.0
+
+
 def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
-          ppm_limit: float = 200.0) -> Alignment:
-    X = generic_columns(ctx, expected_um)
+          ppm_limit: float = 200.0, extra: np.ndarray | None = None) -> Alignment:
+    X = generic_columns(ctx, expected_um, extra)
     check_span(t_m[-1] - t_m[0], ctx.duration_s, ppm_limit)
     valid = int(np.isfinite(y).sum())
     if valid < max(1000, 0.5 * len(y)):
         raise AlignmentError(f"only {valid} of {len(y)} samples hold a reading (the rest are "
                              f"dropouts); at least half are needed")
-    off, ppm = coarse(ctx, X, t_m, y, ppm_limit)
+    # the global search with every column costs (columns)^2 correlations per clock rate:
+    # on long programs (an hour at a crawl) it searches with the generic columns only
+    # and the full model polishes
+    few = extra is not None and ctx.duration_s > COARSE_ALL_COLUMNS_S
+    off, ppm = coarse(ctx, generic_columns(ctx, expected_um) if few else X, t_m, y, ppm_limit)
     return refine(ctx, X, t_m, y, off, ppm, ppm_limit)

@@ -23,7 +23,7 @@ from ..errormodel.errorset import ErrorSet
 from ..machine.kinematics import Kinematics
 from ..planfiles import PlanFiles
 from ..sim.simulate import Trace, error_values
-from .align import Alignment, align, refine
+from .align import Alignment, align, generic_columns, refine
 from .context import Context, build_context, strided
 from .effects import GEOMETRIC, PRIOR_ORDER, Effect, GeometryBeyond, Samples, library
 
@@ -68,6 +68,8 @@ class Finding:
     where: dict = field(default_factory=dict)
     contribution_rms_um: float = 0.0
     geometry_doubt: bool = False
+    ambiguous_with: list = field(default_factory=list)
+    separate_by: str = ""
 
 
 @dataclass
@@ -175,14 +177,17 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     expected = expected_reading(plan, ctx, model)
     t_m, y = np.asarray(trace.t_s, float), np.asarray(trace.delta_l_um, float)
     step("alignment")
-    al = align(ctx, expected, t_m, y)
+    base = alignment_columns(plan, ctx)
+    al = align(ctx, expected, t_m, y, extra=base)
     lib = library(plan.config.machine, plan.tested_travel())
     first = _explain(ctx, lib, expected, t_m, y, al, options, step, finalize=False)
-    # realign with the explained model, then explain again with what was found (the
-    # nonlinear parameters searched afresh) and report
+    # realign with the explained model (the first alignment already searched with what
+    # any trace may hold, so polishing it is enough), then explain again with what was
+    # found (the nonlinear parameters searched afresh)
     if first.findings:
         X = _model_columns(ctx, lib, expected, first.findings)
-        al = refine(ctx, X, t_m, y, al.offset_s, al.clock_ppm)
+        al = refine(ctx, np.column_stack([generic_columns(ctx, expected, base), X[:, 2:]]),
+                    t_m, y, al.offset_s, al.clock_ppm)
         step("realigned with the findings")
     names = {f.effect for f in first.findings}
     result = _explain(ctx, [e for e in lib if e.name in names], expected, t_m, y, al, options,
@@ -204,6 +209,34 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     entry = next((p for p in plan.manifest.get("programs", []) if p["name"] == program), {})
     result.gap["where"] = {"layer": entry.get("layer", ""), **result.gap["where"]}
     return result
+
+
+def alignment_columns(plan: PlanFiles, ctx: Context) -> np.ndarray:
+    """Columns the alignment fits besides its generic ones, so that what every trace
+    may hold cannot pull the timing: geometry as functions of the pose (squareness,
+    scale, and the smooth geometry beyond the model), different servo lags, a drift,
+    and reversal-locked steps and pulses (backlash, lateral play, friction spikes)."""
+    from .effects import Backlash, LateralPlay, ReversalSpike, ScaleMismatch, ServoMismatch, \
+        Squareness, _lin
+
+    m, travel = plan.config.machine, plan.tested_travel()
+    k = strided(ctx.n, ctx.ball_mm)
+    sub = Samples(k, ctx.t_s[k])
+    G = np.column_stack([E.columns(ctx, sub, {})[0] for E in
+                         (Squareness(m, travel), ScaleMismatch(m, travel),
+                          GeometryBeyond(m, travel))])
+    at = np.arange(ctx.n)
+    cols = [np.column_stack([np.interp(at, k, G[:, i]) for i in range(G.shape[1])])]
+    allg = Samples(at, ctx.t_s)
+    cols.append(ServoMismatch().columns(ctx, allg, {})[0])
+    cols.append(ctx.u * (ctx.t_s / 3600.0)[:, None])
+    widths = {f"width_{ctx.axis_names[j]}_um": 6.5 for j in _lin(ctx)
+              if len(ctx.reversal_times[j])}
+    if widths:
+        cols.append(Backlash().columns(ctx, allg, widths)[0])
+        cols.append(ReversalSpike().columns(ctx, allg, {"tau_ms": 25.0})[0])
+        cols.append(LateralPlay().columns(ctx, allg, {})[0])
+    return np.column_stack(cols)
 
 
 def _model_columns(ctx, lib, expected, findings) -> np.ndarray:
@@ -417,6 +450,12 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             if r2 >= opt.mimic_r2:
                 f.mimics.append({"effect": other.name, "r2": round(r2, 4)})
         f.mimics.sort(key=lambda m: -m["r2"])
+        for pair, how in ALIASED.items():
+            if f.effect in pair:
+                other = next(iter(pair - {f.effect}))
+                if any(m["effect"] == other for m in f.mimics):
+                    f.ambiguous_with = [other]
+                    f.separate_by = how
         _confidence(f)
     gap_rms = rms(gap)
     un_rms = rms(resid)
@@ -456,6 +495,18 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                      {"tau": tau[allsel], "gap": y_all, "fitted": fitted, "residual": resid,
                       "idx": series_idx, "held": held[allsel]})
 
+
+#: Pairs of effects one recording at one feed cannot tell apart, and the experiment that
+#: separates them.  Equal servo lag shrinks the path by (v tau)^2 / (2 R); a control's
+#: smoothing set as a path tolerance shortcuts the same curves by an amount that does not
+#: grow with the feed, one set as a time filter by (v sigma)^2 / (2 R) like the lag - then
+#: only the static nodes tell them apart (a lag arrives late and one-sided, a zero-phase
+#: filter leaves early and arrives late, symmetric about the stop).
+ALIASED = {frozenset({"servo_lag", "contour_smoothing"}):
+           "run the layer again at a second feed (a path-tolerance smoothing does not grow "
+           "with the feed, a lag's shrink grows as its square) and compare how the reading "
+           "leaves and reaches the static nodes (a lag is one-sided, a zero-phase smoothing "
+           "symmetric)"}
 
 #: Effects whose signal is read through timing at the millisecond level.
 TIME_LOCKED = ("servo_lag", "servo_mismatch", "contour_smoothing", "vibration",

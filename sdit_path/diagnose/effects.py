@@ -132,7 +132,7 @@ class BarLength(Effect):
 
 class ThermalDrift(Effect):
     name, title = "thermal_drift", "slow drift in time: radial growth and pivot-to-spindle drift"
-    limits = {"*_um_per_h": 100.0}
+    limits = {"*_um_per_h": 60.0}  # the brief: up to 40 um/h in a Z warm-up
 
     def columns(self, ctx, s, nl):
         th = s.tau_s / 3600.0
@@ -269,14 +269,17 @@ class Backlash(Effect):
 
 class ReversalSpike(Effect):
     name, title = "reversal_spike", "decaying pulse after an axis reversal (friction)"
-    limits = {"height_*": 50.0}
-    grid_ms = (5.0, 8.0, 12.0, 18.0, 25.0, 35.0, 50.0, 70.0, 100.0, 140.0)
+    # the brief: tau 10-100 ms; the pulse rises over a few ms (friction breaking away
+    # through the velocity loop), it does not jump
+    limits = {"height_*": 50.0, "tau_ms": 100.0}
+    grid_ms = (5.0, 8.0, 12.0, 18.0, 25.0, 35.0, 50.0, 70.0, 100.0)
+    rise_ms = 3.0
 
     def _cols(self, ctx, s, tau_ms):
         cols = []
         for j in _lin(ctx):
-            since = ctx.since_reversal_s[s.idx, j]
-            decay = np.exp(-np.minimum(since, 50.0) / (tau_ms * 1e-3))
+            since = np.minimum(ctx.since_reversal_s[s.idx, j], 50.0)
+            decay = (1.0 - np.exp(-since / (self.rise_ms * 1e-3))) * np.exp(-since / (tau_ms * 1e-3))
             cols.append(-ctx.gain[s.idx, j] * ctx.direction[s.idx, j] * decay)
         return np.column_stack(cols)
 
@@ -424,8 +427,10 @@ class StickSlip(Effect):
             i = s.idx
             since = since_all[i]
             x = since / (period_ms * 1e-3)
+            # stuck, the axis falls behind its command (against its direction of
+            # motion) until the spring force breaks the friction; then it slips forward
             saw = 2.0 * (x - np.floor(x)) - 1.0
-            cols.append(ctx.gain[i, j] * saw * slow[i])
+            cols.append(-ctx.gain[i, j] * ctx.direction[i, j] * saw * slow[i])
         return np.column_stack(cols)
 
     def search(self, ctx, s, r):
@@ -468,7 +473,7 @@ class _ModelColumns(Effect):
 
 class Squareness(_ModelColumns):
     name, title = "squareness", "out-of-squareness of the linear axes (shear)"
-    limits = {"*_urad": 300.0}
+    limits = {"*_urad": 200.0}  # the brief: 50-100 um/m on a bad machine
     wanted = ("EC0Y", "EB0Z", "EA0Z")
 
     def parameters(self, coef, labels, nl, ctx):
@@ -477,7 +482,7 @@ class Squareness(_ModelColumns):
 
 class ScaleMismatch(_ModelColumns):
     name, title = "scale_mismatch", "linear positioning (scale) error per axis"
-    limits = {"*_um_per_m": 200.0}
+    limits = {"*_um_per_m": 100.0}  # the brief: 30-60 um/m on a bad machine
     wanted = ("EXX.P1", "EYY.P1", "EZZ.P1")
 
     def parameters(self, coef, labels, nl, ctx):

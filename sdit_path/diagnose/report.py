@@ -50,6 +50,7 @@ def to_json(d: Diagnosis) -> dict:
             "contribution_rms_um": f.contribution_rms_um,
             "delta_bic": f.delta_bic, "confidence": f.confidence,
             "mimics": f.mimics, "runner_up": f.runner_up,
+            "ambiguous_with": f.ambiguous_with, "separate_by": f.separate_by,
             "runner_up_evidence_ratio": f.runner_up_ratio,
         } for k, f in enumerate(d.findings)],
         "unexplained": d.unexplained,
@@ -95,6 +96,9 @@ def summary_text(d: Diagnosis) -> str:
         if f.mimics:
             lines.append("   mimicked by: " + ", ".join(f"{m['effect']} (R2 {m['r2']:.2f})" for m in f.mimics)
                          + " - the same signature; separate them by a second feed, direction or set-up")
+        if f.ambiguous_with:
+            lines.append(f"   AMBIGUOUS: {f.effect} or {' or '.join(f.ambiguous_with)} - this "
+                         f"recording cannot tell them apart; to separate them, {f.separate_by}")
         if f.where.get("segments"):
             lines.append("   where: " + ", ".join(f.where["segments"][:8]))
     u = d.unexplained
