@@ -150,6 +150,7 @@ def main() -> None:
     ap.add_argument("--per-program", type=int, default=len(KINDS))
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--only", default=None, help="Only these case numbers (comma-separated).")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--rescore", type=Path, default=None,
                     help="Print the table of an earlier --json file.")
@@ -160,7 +161,9 @@ def main() -> None:
     jobs = []
     for spec in args.case:
         plan_dir, program = spec.rsplit(":", 1)
-        jobs += [(plan_dir, program, k, args.seed) for k in range(args.per_program)]
+        ks = ([int(k) for k in args.only.split(",")] if args.only
+              else range(args.per_program))
+        jobs += [(plan_dir, program, k, args.seed) for k in ks]
     results = []
     with ProcessPoolExecutor(args.jobs) as pool:
         for r in pool.map(run_case, jobs):

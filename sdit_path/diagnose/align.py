@@ -72,10 +72,14 @@ def _block_mean(x: np.ndarray, w: np.ndarray, edges: np.ndarray) -> tuple[np.nda
 
 
 def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
-           ppm_limit: float = 200.0, block_s: float = 0.1, drift_s: float = 0.01
-           ) -> tuple[float, float]:
-    """Best (offset_s, clock_ppm) on a grid: offsets at ``block_s``, rates at a step
-    that keeps the drift over the program under ``drift_s``."""
+           ppm_limit: float = 200.0, block_s: float = 0.1, drift_s: float = 0.01,
+           candidates: int = 1, apart_s: float = 0.25
+           ) -> list[tuple[float, float]]:
+    """The best (offset_s, clock_ppm) on a grid, best first: offsets at ``block_s``,
+    rates at a step that keeps the drift over the program under ``drift_s``.  With
+    ``candidates`` > 1, that many distinct minima (offsets at least ``apart_s`` apart):
+    at 10 Hz and on a rate grid the true alignment can lose to a near-equal other one,
+    which the full-rate fit then tells apart."""
     T = ctx.duration_s
     dt_p = float(np.median(np.diff(ctx.t_s)))
     per = max(1, int(round(block_s / dt_p)))
@@ -83,6 +87,9 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     if nb < 4:
         raise AlignmentError("program too short to align")
     edges_p = np.arange(nb + 1) * per
+    # columns at unit RMS: the small ridge that keeps the solves regular must not
+    # penalise a column for its units (it biased the search by tenths of a second)
+    X = X / np.maximum(np.sqrt(np.mean(X * X, axis=0)), 1e-12)
     Xb = np.column_stack([_block_mean(X[:, a], np.ones(ctx.n), edges_p)[0]
                           for a in range(X.shape[1])])
     x0, xT = X[0], X[-1]
@@ -91,7 +98,7 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     step_ppm = max(1.0, drift_s / max(T, 1e-9) * 1e6)
     rates = np.arange(-ppm_limit, ppm_limit + 0.5 * step_ppm, step_ppm)
     dt_m = float(np.median(np.diff(t_m)))
-    best = (np.inf, 0.0, 0.0)
+    found: list[tuple[float, float, float]] = []
     m = X.shape[1]
     # every correlation at once in the frequency domain; the program side is the same
     # at every rate
@@ -126,16 +133,25 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
         G += np.eye(m) * (1e-9 * np.trace(G, axis1=1, axis2=2)[:, None, None] + 1e-12)
         beta = np.linalg.solve(G, b[..., None])[..., 0]
         rss = float((wb * yb * yb).sum()) - np.einsum("ja,ja->j", b, beta)
-        k = int(np.argmin(rss))
-        if rss[k] < best[0]:
+        # this rate's lowest local minima
+        inner = np.flatnonzero((rss[1:-1] <= rss[:-2]) & (rss[1:-1] <= rss[2:])) + 1
+        ends = [i for i in (0, len(rss) - 1) if len(rss) == 1 or
+                rss[i] <= rss[1 if i == 0 else i - 1]]
+        for k in sorted(np.r_[inner, ends].astype(int), key=lambda i: rss[i])[:candidates]:
             frac = 0.0
             if 0 < k < len(rss) - 1:
                 den = rss[k - 1] - 2 * rss[k] + rss[k + 1]
                 frac = 0.5 * (rss[k - 1] - rss[k + 1]) / den if den > 0 else 0.0
-            best = (float(rss[k]), (k + frac) * d, float(ppm))
-    if not np.isfinite(best[0]):
+            found.append((float(rss[k]), (k + frac) * d + float(t_m[0]), float(ppm)))
+    if not found:
         raise AlignmentError("the trace is shorter than the program at every clock rate")
-    return best[1] + float(t_m[0]), best[2]
+    best: list[tuple[float, float]] = []
+    for _, off, ppm in sorted(found):
+        if all(abs(off - o) >= apart_s for o, _ in best):
+            best.append((off, ppm))
+            if len(best) == candidates:
+                break
+    return best
 
 
 def _at(t: np.ndarray, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
@@ -192,7 +208,8 @@ def _timing_std(J: np.ndarray, r: np.ndarray) -> tuple[float, float]:
 
 def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s: float,
            ppm: float, ppm_limit: float = 200.0, iterations: int = 8,
-           max_samples: int = 120_000, max_step_s: float = 0.05) -> Alignment:
+           max_samples: int = 120_000, max_step_s: float = 0.05, check: bool = True
+           ) -> Alignment:
     """Gauss-Newton on (offset, rate) with the linear model ``X`` at the full rate;
     a step that does not lower the residual is halved, the rate stays within
     ``ppm_limit`` (plus 10 %)."""
@@ -230,7 +247,8 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
         rms, tau, Xs, beta = trial
         if abs(d_off) < 1e-6 and abs(d_k) < 1e-8:
             break
-    std = _consistency(X, t, tm, yy, offset_s, k, std)
+    if check:
+        std = _consistency(X, t, tm, yy, offset_s, k, std)
     return Alignment(offset_s, k * 1e6, std[0], std[1], rms)
 
 
@@ -314,7 +332,10 @@ COARSE_ALL_COLUMNS_S = 1200.0
 
 
 def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
-          ppm_limit: float = 200.0, extra: np.ndarray | None = None) -> Alignment:
+          ppm_limit: float = 200.0, extra: np.ndarray | None = None, candidates: int = 5,
+          seeds: tuple[tuple[float, float], ...] = ()) -> Alignment:
+    """The global search (``candidates`` distinct minima, plus ``seeds``: alignments
+    found before) polished at the full rate; the lowest residual wins."""
     X = generic_columns(ctx, expected_um, extra)
     check_span(t_m[-1] - t_m[0], ctx.duration_s, ppm_limit)
     valid = int(np.isfinite(y).sum())
@@ -325,5 +346,14 @@ def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     # on long programs (an hour at a crawl) it searches with the generic columns only
     # and the full model polishes
     few = extra is not None and ctx.duration_s > COARSE_ALL_COLUMNS_S
-    off, ppm = coarse(ctx, generic_columns(ctx, expected_um) if few else X, t_m, y, ppm_limit)
-    return refine(ctx, X, t_m, y, off, ppm, ppm_limit)
+    found = coarse(ctx, generic_columns(ctx, expected_um) if few else X, t_m, y, ppm_limit,
+                   candidates=candidates)
+    found = [*found, *[s for s in seeds
+                       if all(abs(s[0] - o) >= 0.005 or abs(s[1] - p) > 1.0 for o, p in found)]]
+    if len(found) > 1:
+        # the candidates told apart at the full rate (a few polishing steps each)
+        trial = [refine(ctx, X, t_m, y, off, ppm, ppm_limit, iterations=3,
+                        max_samples=30_000, check=False) for off, ppm in found]
+        best = min(trial, key=lambda a: a.rms_um)
+        found = [(best.offset_s, best.clock_ppm)]
+    return refine(ctx, X, t_m, y, *found[0], ppm_limit)

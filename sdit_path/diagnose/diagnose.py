@@ -23,7 +23,7 @@ from ..errormodel.errorset import ErrorSet
 from ..machine.kinematics import Kinematics
 from ..planfiles import PlanFiles
 from ..sim.simulate import Trace, error_values
-from .align import Alignment, align, generic_columns, refine
+from .align import Alignment, align, generic_columns
 from .context import Context, build_context, strided
 from .effects import GEOMETRIC, PRIOR_ORDER, Effect, GeometryBeyond, Samples, library
 
@@ -184,11 +184,14 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     # realign with the explained model (the first alignment already searched with what
     # any trace may hold, so polishing it is enough), then explain again with what was
     # found (the nonlinear parameters searched afresh)
-    if first.findings:
-        X = _model_columns(ctx, lib, expected, first.findings)
-        al = refine(ctx, np.column_stack([generic_columns(ctx, expected, base), X[:, 2:]]),
-                    t_m, y, al.offset_s, al.clock_ppm)
-        step("realigned with the findings")
+    # searched afresh with what was found and nothing more: what was found may hold the
+    # timing the first search missed, and the columns that made that search safe
+    # (every kind of geometry, lag, reversal) blur the timing of a trace they do not
+    # describe
+    X = _model_columns(ctx, lib, expected, first.findings)
+    al = align(ctx, expected, t_m, y, extra=X[:, 2:] if X.shape[1] > 2 else None,
+               seeds=((al.offset_s, al.clock_ppm),))
+    step("realigned with the findings")
     names = {f.effect for f in first.findings}
     result = _explain(ctx, [e for e in lib if e.name in names], expected, t_m, y, al, options,
                       step, mimic_library=lib,
