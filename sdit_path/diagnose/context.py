@@ -72,6 +72,21 @@ class Context:
             self._slow[key] = (slow, self.t_s - self.t_s[np.maximum(last, 0)])
         return self._slow[key]
 
+    def crawl_travel(self, j: int, speed: float) -> tuple[np.ndarray, np.ndarray]:
+        """Axis j's commanded travel so far (mm, on the grid) and its value where the
+        current crawl began (cached)."""
+        key = ("travel", j, speed)
+        if key not in self._slow:
+            slow, _ = self.slow_state(j, speed)
+            dt = np.diff(self.t_s, prepend=self.t_s[0])
+            travel = np.cumsum(np.abs(self.qdot[:, j]) * dt)
+            enter = np.flatnonzero(np.diff(np.r_[False, slow]).astype(bool) & slow)
+            last = np.full(self.n, -1)
+            last[enter] = enter
+            last = np.maximum.accumulate(last)
+            self._slow[key] = (travel, travel[np.maximum(last, 0)])
+        return self._slow[key]
+
     @property
     def n(self) -> int:
         return len(self.t_s)

@@ -25,7 +25,8 @@ from ..planfiles import PlanFiles
 from ..sim.simulate import Trace, error_values
 from .align import Alignment, align, generic_columns
 from .context import Context, build_context, strided
-from .effects import GEOMETRIC, PRIOR_ORDER, Effect, GeometryBeyond, Samples, library
+from .effects import GEOMETRIC, PRIOR_ORDER, Backlash, Effect, GeometryBeyond, LateralPlay, \
+    ReversalSpike, Samples, ScaleMismatch, ServoMismatch, Squareness, library, linear_axes
 
 log = logging.getLogger(__name__)
 
@@ -189,7 +190,8 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     # (every kind of geometry, lag, reversal) blur the timing of a trace they do not
     # describe
     X = _model_columns(ctx, lib, expected, first.findings)
-    al = align(ctx, expected, t_m, y, extra=X[:, 2:] if X.shape[1] > 2 else None,
+    al = align(ctx, expected, t_m, y,
+               extra=np.column_stack([alignment_columns(plan, ctx, pose_only=True), X[:, 2:]]),
                seeds=((al.offset_s, al.clock_ppm),))
     step("realigned with the findings")
     names = {f.effect for f in first.findings}
@@ -214,14 +216,12 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     return result
 
 
-def alignment_columns(plan: PlanFiles, ctx: Context) -> np.ndarray:
+def alignment_columns(plan: PlanFiles, ctx: Context, pose_only: bool = False) -> np.ndarray:
     """Columns the alignment fits besides its generic ones, so that what every trace
     may hold cannot pull the timing: geometry as functions of the pose (squareness,
-    scale, and the smooth geometry beyond the model), different servo lags, a drift,
-    and reversal-locked steps and pulses (backlash, lateral play, friction spikes)."""
-    from .effects import Backlash, LateralPlay, ReversalSpike, ScaleMismatch, ServoMismatch, \
-        Squareness, _lin
-
+    scale, and the smooth geometry beyond the model) and, unless ``pose_only``,
+    different servo lags, a drift, and reversal-locked steps and pulses (backlash,
+    lateral play, friction spikes)."""
     m, travel = plan.config.machine, plan.tested_travel()
     k = strided(ctx.n, ctx.ball_mm)
     sub = Samples(k, ctx.t_s[k])
@@ -230,10 +230,12 @@ def alignment_columns(plan: PlanFiles, ctx: Context) -> np.ndarray:
                           GeometryBeyond(m, travel))])
     at = np.arange(ctx.n)
     cols = [np.column_stack([np.interp(at, k, G[:, i]) for i in range(G.shape[1])])]
+    if pose_only:
+        return cols[0]
     allg = Samples(at, ctx.t_s)
     cols.append(ServoMismatch().columns(ctx, allg, {})[0])
     cols.append(ctx.u * (ctx.t_s / 3600.0)[:, None])
-    widths = {f"width_{ctx.axis_names[j]}_um": 6.5 for j in _lin(ctx)
+    widths = {f"width_{ctx.axis_names[j]}_um": 6.5 for j in linear_axes(ctx)
               if len(ctx.reversal_times[j])}
     if widths:
         cols.append(Backlash().columns(ctx, allg, widths)[0])
@@ -428,8 +430,10 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
     resid = y_all - fitted
     noise = noise_estimate(resid, tau[allsel])
     series_idx = idx[allsel]
+    contribs = {}
     for f, (eff, nl, labels), sl in zip(findings, chosen, slices):
         contrib = blocks[slices.index(sl)] @ beta[sl]
+        contribs[f.effect] = contrib
         f.parameters = eff.parameters(beta[sl], labels, nl, ctx)
         f.contribution_rms_um = rms(contrib)
         f.where = _where(ctx, series_idx, tau[allsel], contrib)
@@ -460,6 +464,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                     f.ambiguous_with = [other]
                     f.separate_by = how
         _confidence(f)
+    findings = _merge_aliased(findings, contribs, ctx, series_idx, tau[allsel])
     gap_rms = rms(gap)
     un_rms = rms(resid)
     unexplained = {"rms_um": un_rms, "noise_um": noise,
@@ -510,6 +515,31 @@ ALIASED = {frozenset({"servo_lag", "contour_smoothing"}):
            "with the feed, a lag's shrink grows as its square) and compare how the reading "
            "leaves and reaches the static nodes (a lag is one-sided, a zero-phase smoothing "
            "symmetric)"}
+
+def _merge_aliased(findings: list, contribs: dict, ctx: Context, idx: np.ndarray,
+                   tau: np.ndarray) -> list:
+    """Two effects this recording cannot tell apart, both selected, are one finding:
+    the first named, the other in ``ambiguous_with``, their joint contribution and
+    both parameter sets (the other's prefixed with its name)."""
+    for pair, how in ALIASED.items():
+        both = [f for f in findings if f.effect in pair]
+        if len(both) != 2:
+            continue
+        keep, drop = both
+        joint = contribs[keep.effect] + contribs[drop.effect]
+        keep.contribution_rms_um = float(np.sqrt(np.mean(joint * joint)))
+        keep.where = _where(ctx, idx, tau, joint)
+        keep.parameters = {**keep.parameters,
+                           **{f"{drop.effect}.{k}": v for k, v in drop.parameters.items()}}
+        keep.heldout_rms_after_um = min(keep.heldout_rms_after_um, drop.heldout_rms_after_um)
+        keep.rms_after_um = min(keep.rms_after_um, drop.rms_after_um)
+        keep.ambiguous_with, keep.separate_by = [drop.effect], how
+        keep.mimics = [m for m in keep.mimics if m["effect"] != drop.effect] + [
+            {"effect": drop.effect, "r2": 1.0}]
+        _confidence(keep)
+        findings = [f for f in findings if f is not drop]
+    return findings
+
 
 #: Effects whose signal is read through timing at the millisecond level.
 TIME_LOCKED = ("servo_lag", "servo_mismatch", "contour_smoothing", "vibration",

@@ -108,9 +108,12 @@ def _match(key: str, pattern: str) -> bool:
     return key == pattern
 
 
-def _lin(ctx: Context):
+def linear_axes(ctx: Context):
     """Linear axes the bar can see."""
     return [j for j in ctx.linear if j in ctx.observable]
+
+
+_lin = linear_axes
 
 
 class SetupOffset(Effect):
@@ -416,30 +419,38 @@ class Vibration(Effect):
 
 
 class StickSlip(Effect):
-    name, title = "stick_slip", "saw-tooth while an axis crawls near a reversal"
-    limits = {"amplitude_*": 8.0}
-    grid_ms = (15.0, 25.0, 40.0, 60.0, 90.0, 130.0, 200.0)
+    """An axis that crawls (slower than ~200 mm/min, near its reversals) sticks: its
+    command runs on and the lag grows with the commanded travel until the spring force
+    of the drive breaks the friction; it then slips forward, often past the command.
+    The slip comes after a fixed travel (the stick distance: friction step over drive
+    stiffness), not after a fixed time: a saw-tooth in the travel since the crawl
+    began, its period in time growing as the axis slows.  Per axis: the mean lag while
+    crawling (against the direction of motion) and the saw-tooth about it."""
 
-    def _cols(self, ctx, s, period_ms):
+    name, title = "stick_slip", "saw-tooth while an axis crawls near a reversal"
+    limits = {"amplitude_*": 8.0, "mean_lag_*": 8.0}
+    grid_um = (0.5, 0.8, 1.3, 2.0, 3.2, 5.0, 8.0, 12.0)
+
+    def _cols(self, ctx, s, stick_um):
         cols = []
         for j in _lin(ctx):
-            slow, since_all = ctx.slow_state(j, STICK_SLIP_SPEED_MM_PER_S)
+            slow, _ = ctx.slow_state(j, STICK_SLIP_SPEED_MM_PER_S)
+            travel, at_entry = ctx.crawl_travel(j, STICK_SLIP_SPEED_MM_PER_S)
             i = s.idx
-            since = since_all[i]
-            x = since / (period_ms * 1e-3)
-            # stuck, the axis falls behind its command (against its direction of
-            # motion) until the spring force breaks the friction; then it slips forward
+            x = (np.interp(s.tau_s, ctx.t_s, travel) - at_entry[i]) / (stick_um * 1e-3)
             saw = 2.0 * (x - np.floor(x)) - 1.0
-            cols.append(-ctx.gain[i, j] * ctx.direction[i, j] * saw * slow[i])
+            against = -ctx.gain[i, j] * ctx.direction[i, j] * slow[i]
+            cols += [against, against * saw]
         return np.column_stack(cols)
 
     def search(self, ctx, s, r):
-        return {"period_ms": _grid_search(
-            self.grid_ms, lambda p: _proj_gain(self._cols(ctx, s, p), r), np.geomspace)}
+        return {"stick_um": _grid_search(
+            self.grid_um, lambda p: _proj_gain(self._cols(ctx, s, p), r), np.geomspace)}
 
     def columns(self, ctx, s, nl):
-        return self._cols(ctx, s, nl["period_ms"]), tuple(
-            f"amplitude_{ctx.axis_names[j]}_um" for j in _lin(ctx))
+        return self._cols(ctx, s, nl["stick_um"]), tuple(
+            f"{kind}_{ctx.axis_names[j]}_um" for j in _lin(ctx)
+            for kind in ("mean_lag", "amplitude"))
 
 
 class _ModelColumns(Effect):

@@ -90,11 +90,13 @@ def summary_text(d: Diagnosis) -> str:
     for k, f in enumerate(d.findings, start=1):
         par = ", ".join(f"{a} {b:.4g}" if isinstance(b, float) else f"{a} {b}"
                         for a, b in f.parameters.items())
-        lines.append(f"{k}. {f.effect} ({f.confidence} confidence): {par}")
+        name = " or ".join([f.effect, *f.ambiguous_with])
+        lines.append(f"{k}. {name} ({f.confidence} confidence): {par}")
         lines.append(f"   RMS {f.rms_before_um:.3f} -> {f.rms_after_um:.3f} um fitted, "
                      f"held-out {f.heldout_rms_before_um:.3f} -> {f.heldout_rms_after_um:.3f} um")
-        if f.mimics:
-            lines.append("   mimicked by: " + ", ".join(f"{m['effect']} (R2 {m['r2']:.2f})" for m in f.mimics)
+        mimics = [m for m in f.mimics if m["effect"] not in f.ambiguous_with]
+        if mimics:
+            lines.append("   mimicked by: " + ", ".join(f"{m['effect']} (R2 {m['r2']:.2f})" for m in mimics)
                          + " - the same signature; separate them by a second feed, direction or set-up")
         if f.ambiguous_with:
             lines.append(f"   AMBIGUOUS: {f.effect} or {' or '.join(f.ambiguous_with)} - this "

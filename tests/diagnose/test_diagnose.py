@@ -106,6 +106,9 @@ def test_mimics_are_reported(setup, tmp_path):
     other = "contour_smoothing" if f.effect == "servo_lag" else "servo_lag"
     assert other in [m["effect"] for m in f.mimics]
     assert f.confidence != "high"
+    # one ambiguous finding, never the pair as two
+    assert f.ambiguous_with == [other] and f.separate_by
+    assert other not in [g.effect for g in d.findings]
 
 
 def test_cli_perturb_diagnose_json_and_pictures(plan_dir, tmp_path):
