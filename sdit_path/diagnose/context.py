@@ -65,11 +65,7 @@ class Context:
         key = (j, speed)
         if key not in self._slow:
             slow = (np.abs(self.qdot[:, j]) < speed) & self.moving
-            enter = np.flatnonzero(np.diff(np.r_[False, slow]).astype(bool) & slow)
-            last = np.full(self.n, -1)
-            last[enter] = enter
-            last = np.maximum.accumulate(last)
-            self._slow[key] = (slow, self.t_s - self.t_s[np.maximum(last, 0)])
+            self._slow[key] = (slow, self.t_s - self.t_s[_crawl_start(slow)])
         return self._slow[key]
 
     def crawl_travel(self, j: int, speed: float) -> tuple[np.ndarray, np.ndarray]:
@@ -80,11 +76,7 @@ class Context:
             slow, _ = self.slow_state(j, speed)
             dt = np.diff(self.t_s, prepend=self.t_s[0])
             travel = np.cumsum(np.abs(self.qdot[:, j]) * dt)
-            enter = np.flatnonzero(np.diff(np.r_[False, slow]).astype(bool) & slow)
-            last = np.full(self.n, -1)
-            last[enter] = enter
-            last = np.maximum.accumulate(last)
-            self._slow[key] = (travel, travel[np.maximum(last, 0)])
+            self._slow[key] = (travel, travel[_crawl_start(slow)])
         return self._slow[key]
 
     @property
@@ -94,6 +86,15 @@ class Context:
     @property
     def duration_s(self) -> float:
         return float(self.t_s[-1] - self.t_s[0])
+
+
+def _crawl_start(slow: np.ndarray) -> np.ndarray:
+    """Per sample, the index where the latest stretch of ``slow`` began (0 before the
+    first)."""
+    enter = np.flatnonzero(np.diff(np.r_[False, slow]).astype(bool) & slow)
+    last = np.full(len(slow), -1)
+    last[enter] = enter
+    return np.maximum(np.maximum.accumulate(last), 0)
 
 
 def _directions(qdot: np.ndarray, eps: float) -> np.ndarray:

@@ -23,7 +23,7 @@ from ..errormodel.errorset import ErrorSet
 from ..machine.kinematics import Kinematics
 from ..planfiles import PlanFiles
 from ..sim.simulate import Trace, error_values
-from .align import Alignment, align, generic_columns
+from .align import Alignment, align
 from .context import Context, build_context, strided
 from .effects import GEOMETRIC, PRIOR_ORDER, Backlash, Effect, GeometryBeyond, LateralPlay, \
     ReversalSpike, Samples, ScaleMismatch, ServoMismatch, Squareness, library, linear_axes

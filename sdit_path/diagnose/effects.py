@@ -113,8 +113,6 @@ def linear_axes(ctx: Context):
     return [j for j in ctx.linear if j in ctx.observable]
 
 
-_lin = linear_axes
-
 
 class SetupOffset(Effect):
     name, title = "setup_offset", "ball centring / set-up offset of the pivot"
@@ -234,7 +232,7 @@ class Backlash(Effect):
 
     def search(self, ctx, s, r):
         out = {}
-        for j in _lin(ctx):
+        for j in linear_axes(ctx):
             if not len(ctx.reversal_times[j]):
                 continue
             g = [_proj_gain(self._col(ctx, s, j, b)[:, None], r) for b in self.grid_um]
@@ -262,7 +260,7 @@ class Backlash(Effect):
         return ctx.gain[i, j] * dev / b
 
     def columns(self, ctx, s, nl):
-        axes = [j for j in _lin(ctx) if f"width_{ctx.axis_names[j]}_um" in nl]
+        axes = [j for j in linear_axes(ctx) if f"width_{ctx.axis_names[j]}_um" in nl]
         cols = [self._col(ctx, s, j, nl[f"width_{ctx.axis_names[j]}_um"]) for j in axes]
         return np.column_stack(cols), tuple(f"play_{ctx.axis_names[j]}_um" for j in axes)
 
@@ -280,21 +278,21 @@ class ReversalSpike(Effect):
 
     def _cols(self, ctx, s, tau_ms):
         cols = []
-        for j in _lin(ctx):
+        for j in linear_axes(ctx):
             since = np.minimum(ctx.since_reversal_s[s.idx, j], 50.0)
             decay = (1.0 - np.exp(-since / (self.rise_ms * 1e-3))) * np.exp(-since / (tau_ms * 1e-3))
             cols.append(-ctx.gain[s.idx, j] * ctx.direction[s.idx, j] * decay)
         return np.column_stack(cols)
 
     def search(self, ctx, s, r):
-        if not any(len(ctx.reversal_times[j]) for j in _lin(ctx)):
+        if not any(len(ctx.reversal_times[j]) for j in linear_axes(ctx)):
             return None
         return {"tau_ms": _grid_search(self.grid_ms, lambda t: _proj_gain(self._cols(ctx, s, t), r),
                                        np.geomspace)}
 
     def columns(self, ctx, s, nl):
         return self._cols(ctx, s, nl["tau_ms"]), tuple(
-            f"height_{ctx.axis_names[j]}_um" for j in _lin(ctx))
+            f"height_{ctx.axis_names[j]}_um" for j in linear_axes(ctx))
 
 
 class LateralPlay(Effect):
@@ -303,10 +301,10 @@ class LateralPlay(Effect):
 
     def columns(self, ctx, s, nl):
         cols, labels = [], []
-        for j in _lin(ctx):
+        for j in linear_axes(ctx):
             if not len(ctx.reversal_times[j]):
                 continue
-            for k in _lin(ctx):
+            for k in linear_axes(ctx):
                 if k != j:
                     cols.append(ctx.gain[s.idx, k] * ctx.direction[s.idx, j] / 2.0)
                     labels.append(f"play_{ctx.axis_names[k]}_on_{ctx.axis_names[j]}_reversal_um")
@@ -322,7 +320,7 @@ class CyclicError(Effect):
         best = (0.0, None, None, None)
         n = len(s.idx)
         sub = np.sort(np.random.default_rng(1).choice(n, min(n, 8000), replace=False))
-        for j in _lin(ctx):
+        for j in linear_axes(ctx):
             x = ctx.q[s.idx, j]
             span = float(np.ptp(x))
             if span < 2 * self.pitch_range_mm[0]:
@@ -384,7 +382,7 @@ class Vibration(Effect):
         win = np.hanning(n)
         sub = np.sort(np.random.default_rng(2).choice(len(r), min(len(r), 60000), replace=False))
         best = (0.0, None)
-        for j in _lin(ctx):
+        for j in linear_axes(ctx):
             g = ctx.gain[s.idx, j]
             grid = np.zeros(n)
             grid[k] = (r * g)[order]
@@ -405,7 +403,7 @@ class Vibration(Effect):
         ph = 2 * np.pi * nl["frequency_hz"] * s.tau_s
         sn, cs = np.sin(ph), np.cos(ph)
         cols, labels = [], []
-        for j in _lin(ctx):
+        for j in linear_axes(ctx):
             g = ctx.gain[s.idx, j]
             cols += [g * sn, g * cs]
             labels += [f"{ctx.axis_names[j]}_sin_um", f"{ctx.axis_names[j]}_cos_um"]
@@ -413,7 +411,7 @@ class Vibration(Effect):
 
     def parameters(self, coef, labels, nl, ctx):
         out = {"frequency_hz": nl["frequency_hz"]}
-        for n, j in enumerate(_lin(ctx)):
+        for n, j in enumerate(linear_axes(ctx)):
             out[f"amplitude_{ctx.axis_names[j]}_um"] = float(np.hypot(coef[2 * n], coef[2 * n + 1]))
         return out
 
@@ -433,7 +431,7 @@ class StickSlip(Effect):
 
     def _cols(self, ctx, s, stick_um):
         cols = []
-        for j in _lin(ctx):
+        for j in linear_axes(ctx):
             slow, _ = ctx.slow_state(j, STICK_SLIP_SPEED_MM_PER_S)
             travel, at_entry = ctx.crawl_travel(j, STICK_SLIP_SPEED_MM_PER_S)
             i = s.idx
@@ -449,7 +447,7 @@ class StickSlip(Effect):
 
     def columns(self, ctx, s, nl):
         return self._cols(ctx, s, nl["stick_um"]), tuple(
-            f"{kind}_{ctx.axis_names[j]}_um" for j in _lin(ctx)
+            f"{kind}_{ctx.axis_names[j]}_um" for j in linear_axes(ctx)
             for kind in ("mean_lag", "amplitude"))
 
 
