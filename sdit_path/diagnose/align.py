@@ -212,7 +212,7 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
            ) -> Alignment:
     """Gauss-Newton on (offset, rate) with the linear model ``X`` at the full rate;
     a step that does not lower the residual is halved, the rate stays within
-    ``ppm_limit`` (plus 10 %)."""
+    ``ppm_limit`` (a rate that ends at that edge gets the uncertainty of the whole range)."""
     valid = np.flatnonzero(np.isfinite(y))
     if len(valid) > max_samples:
         valid = np.sort(np.random.default_rng(0).choice(valid, max_samples, replace=False))
@@ -249,7 +249,27 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
             break
     if check:
         std = _consistency(X, t, tm, yy, offset_s, k, std)
+    if abs(k) >= kmax * (1 - 1e-3):
+        std = _at_bound(t, X @ beta, tau, std, ppm_limit)
     return Alignment(offset_s, k * 1e6, std[0], std[1], rms)
+
+
+def _at_bound(t: np.ndarray, f: np.ndarray, tau: np.ndarray, std: tuple[float, float],
+              ppm_limit: float) -> tuple[float, float]:
+    """Uncertainties of a clock rate that ended at the edge of the documented range.
+
+    The residual still falls beyond the range, so the rate is not where the data put
+    it but where the contract stopped it: the model misses something that a clock
+    error mimics.  The truth is then anywhere in the range: the rate's uncertainty is
+    that of a uniform spread over twice the range (the estimate at one edge, the truth
+    possibly at the other), and the offset, which the data tie to the rate at the
+    program time where the timing information lies (its centroid), inherits it."""
+    fd = _at(t, np.gradient(f, t), tau)
+    w = fd * fd
+    tau_c = float(np.sum(w * tau) / max(float(np.sum(w)), 1e-300))
+    clk = 2 * ppm_limit / np.sqrt(3.0)
+    off = float(np.hypot(std[0], tau_c * clk * 1e-6))
+    return min(max(off, std[0]), 1.0), max(std[1], clk)
 
 
 def _window_shift(tw: np.ndarray, t: np.ndarray, X: np.ndarray, yw: np.ndarray,
@@ -289,6 +309,10 @@ def _consistency(X: np.ndarray, t: np.ndarray, tm: np.ndarray, yy: np.ndarray,
     slope - how far the stretches say the global offset and clock are off - are added
     to the uncertainties (never subtracted: a stated uncertainty only grows)."""
     tau = (tm - offset_s) / (1 + k)
+    # each stretch shifts the whole model as fitted (one scale): refitting every column
+    # on every stretch would throw away what the stretches share, and the stretches'
+    # scatter would then state the timing ten to a hundred times worse than it is
+    f = (X @ _lsq(_at(t, X, np.clip(tau, t[0], t[-1])), yy))[:, None]
     edges = np.linspace(t[0], t[-1], windows + 1)
     grid = np.arange(-half_s, half_s + step_s / 2, step_s)
     c, d, sd = [], [], []
@@ -297,7 +321,7 @@ def _consistency(X: np.ndarray, t: np.ndarray, tm: np.ndarray, yy: np.ndarray,
         if len(sel) < 100:
             continue
         sel = sel[:: max(1, len(sel) // per_window)]
-        shift, s = _window_shift(tau[sel], t, X, yy[sel], grid)
+        shift, s = _window_shift(tau[sel], t, f, yy[sel], grid)
         if np.isfinite(s):
             c.append(0.5 * (a + b))
             d.append(shift)
@@ -357,3 +381,68 @@ def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
         best = min(trial, key=lambda a: a.rms_um)
         found = [(best.offset_s, best.clock_ppm)]
     return refine(ctx, X, t_m, y, *found[0], ppm_limit)
+
+
+@dataclass(frozen=True, slots=True)
+class SetupStep:
+    """A step of the set-up during the recording: at measured time ``t_s`` the set-up
+    offset (as the ``setup_offset`` finding reads it: machine frame, reading -u.shift)
+    changed by ``shift_um``."""
+    t_s: float
+    shift_um: tuple[float, float, float]
+
+    def reading_um(self, ctx: Context, al: Alignment, t_m: np.ndarray) -> np.ndarray:
+        """What the step adds to the reading at measured times ``t_m``."""
+        U = _at(ctx.t_s, ctx.u, np.clip(al.program_time(t_m), ctx.t_s[0], ctx.t_s[-1]))
+        return -(U @ np.asarray(self.shift_um)) * (np.asarray(t_m) >= self.t_s)
+
+
+def setup_step(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, al: Alignment,
+               share: float = 0.3, versus_drift: float = 0.7, margin: float = 0.05,
+               max_samples: int = 60_000, at_s: float | None = None) -> SetupStep | None:
+    """A step of the set-up half-way through the recording (the ball mount slipped, a
+    magnet let go), when such a step explains at least ``share`` of what the model
+    ``X`` leaves of the trace and leaves at most ``versus_drift`` of what a drift of
+    the set-up (u*t) would leave; else None.  ``at_s``: its measured time is known,
+    only its size is estimated (with the alignment ``al``).
+
+    No effect of the library holds it, and the timing search, left to itself, bends
+    the clock or moves the start by seconds to make up for it.  The step happens at a
+    moment of the recording, not of the program: it is taken out of the reading before
+    the timing is searched again, and stays in the gap."""
+    tau = al.program_time(t_m)
+    t = ctx.t_s
+    ok = np.flatnonzero(np.isfinite(y) & (tau >= t[0]) & (tau <= t[-1]))
+    if len(ok) < 100:
+        return None
+    ok = ok[:: max(1, len(ok) // max_samples)]
+    tau, yy, tm = tau[ok], y[ok], t_m[ok]
+    A = _at(t, X, tau)
+    U = _at(t, ctx.u, tau)
+
+    def fit(C):
+        M = np.column_stack([A, C])
+        beta = _lsq(M, yy)
+        e = yy - M @ beta
+        return float(e @ e), beta[-3:]
+
+    if at_s is not None:
+        return SetupStep(float(at_s), tuple(-float(v) for v in fit(U * (tm >= at_s)[:, None])[1]))
+    r = yy - A @ _lsq(A, yy)
+    # every step time at once: sums over the samples after it (tau is increasing), the
+    # constant set-up (u) projected out
+    S = np.cumsum((U[:, :, None] * U[:, None, :])[::-1], axis=0)[::-1]
+    b = np.cumsum((U * r[:, None])[::-1], axis=0)[::-1]
+    G = S[0]
+    span = t[-1] - t[0]
+    lo, hi = np.searchsorted(tau, [t[0] + margin * span, t[-1] - margin * span])
+    if hi - lo < 10:
+        return None
+    i = np.arange(lo, hi, max(1, (hi - lo) // 2000))
+    P = S[i] - S[i] @ np.linalg.pinv(G) @ S[i] + np.eye(3) * 1e-12 * np.trace(G)
+    gain = np.einsum("ka,ka->k", b[i], np.linalg.solve(P, b[i][..., None])[..., 0])
+    k = i[int(np.argmax(gain))]
+    (step, shift), (drift, _) = fit(U * (tau >= tau[k])[:, None]), fit(U * tau[:, None])
+    if step > (1 - share) * float(r @ r) or step > versus_drift * drift:
+        return None
+    return SetupStep(float(tm[k]), tuple(-float(v) for v in shift))

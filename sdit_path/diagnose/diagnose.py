@@ -23,7 +23,7 @@ from ..errormodel.errorset import ErrorSet
 from ..machine.kinematics import Kinematics
 from ..planfiles import PlanFiles
 from ..sim.simulate import Trace, error_values
-from .align import Alignment, align
+from .align import Alignment, SetupStep, align, generic_columns, setup_step
 from .context import Context, build_context, strided
 from .effects import GEOMETRIC, PRIOR_ORDER, Backlash, Effect, GeometryBeyond, LateralPlay, \
     ReversalSpike, Samples, ScaleMismatch, ServoMismatch, Squareness, library, linear_axes
@@ -190,9 +190,8 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     # (every kind of geometry, lag, reversal) blur the timing of a trace they do not
     # describe
     X = _model_columns(ctx, lib, expected, first.findings)
-    al = align(ctx, expected, t_m, y,
-               extra=np.column_stack([alignment_columns(plan, ctx, pose_only=True), X[:, 2:]]),
-               seeds=((al.offset_s, al.clock_ppm),))
+    extra = np.column_stack([alignment_columns(plan, ctx, pose_only=True), X[:, 2:]])
+    al, jump = _realign(ctx, expected, t_m, y, extra, al)
     step("realigned with the findings")
     names = {f.effect for f in first.findings}
     result = _explain(ctx, [e for e in lib if e.name in names], expected, t_m, y, al, options,
@@ -210,10 +209,34 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
         for f in result.findings:
             if f.effect in TIME_LOCKED and f.confidence == "high":
                 f.confidence = "medium"
+    if jump is not None:
+        result.gap["setup_step"] = {"at_s": jump.t_s, "shift_um": list(jump.shift_um),
+                                    "size_um": float(np.linalg.norm(jump.shift_um))}
     result.program = program
     entry = next((p for p in plan.manifest.get("programs", []) if p["name"] == program), {})
     result.gap["where"] = {"layer": entry.get("layer", ""), **result.gap["where"]}
     return result
+
+
+def _realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
+              extra: np.ndarray, first: Alignment, rounds: int = 6
+              ) -> tuple[Alignment, SetupStep | None]:
+    """The timing searched afresh with the columns ``extra``, seeded with ``first``.
+    A step of the set-up during the recording (a mount slip) is taken out of the
+    reading first; its time and size depend on the timing and the timing on them, so
+    both are searched in turn until the timing settles."""
+    X = generic_columns(ctx, expected, extra)
+    jump = setup_step(ctx, X, t_m, y, first)
+    al = first
+    for _ in range(rounds if jump else 1):
+        yc = y if jump is None else y - jump.reading_um(ctx, al, t_m)
+        new = align(ctx, expected, t_m, yc, extra=extra, seeds=((al.offset_s, al.clock_ppm),))
+        settled = abs(new.offset_s - al.offset_s) < 1e-3 and abs(new.clock_ppm - al.clock_ppm) < 2.0
+        al = new
+        if jump is None or settled:
+            break
+        jump = setup_step(ctx, X, t_m, y, al) or jump
+    return al, jump
 
 
 def alignment_columns(plan: PlanFiles, ctx: Context, pose_only: bool = False) -> np.ndarray:

@@ -72,6 +72,12 @@ def summary_text(d: Diagnosis) -> str:
                  "medium confidence." if timing_is_weak(al) else ""),
              f"Gap (measured - simulated): RMS {d.gap['rms_um']:.3f} um, max |gap| "
              f"{d.gap['max_abs_um']:.3f} um; sensor noise about {d.noise_um:.3f} um."]
+    jump = d.gap.get("setup_step")
+    if jump:
+        lines.append(f"  the set-up offset stepped by {jump['size_um']:.2f} um (dx, dy, dz "
+                     + ", ".join(f"{v:+.2f}" for v in jump["shift_um"])
+                     + f") at {jump['at_s']:.2f} s of the recording: a mount slip or a knock? "
+                     f"Taken out for the timing only; it stays in the gap (no effect holds it)")
     w = d.gap["where"]
     if w.get("by_part_rms_um"):
         lines.append(f"  layer {w.get('layer', '?')}, RMS by part (um): " + ", ".join(
