@@ -54,8 +54,8 @@ def test_diagnosis_benchmark_runs_and_prints_its_ratio():
     assert "ratio trace duration / diagnosis time" in r.stdout
 
 
-def test_blind_check_runs_and_prints_its_scores():
-    r = subprocess.run([sys.executable, str(BENCH / "blind_check.py"), "--cases", "4",
+def test_perturb_selfcheck_runs_and_prints_its_scores():
+    r = subprocess.run([sys.executable, str(BENCH / "perturb_selfcheck.py"), "--cases", "4",
                         "--jobs", "1"], capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr
     for key in ("top-1 effect", "false findings, clean traces", "honest outside the library",
