@@ -272,8 +272,8 @@ def _model_columns(ctx, lib, expected, findings) -> np.ndarray:
     cols = [expected[:, None], np.ones((ctx.n, 1))]
     by = {e.name: e for e in lib}
     for f in findings:
-        if f.effect == "vibration":
-            continue  # time-locked: it would pull the clock rate, not inform it
+        if f.effect == "vibration" and f.nonlinear.get("steady"):
+            continue  # locked to time, not to the program: it would pull the clock rate
         c, _ = by[f.effect].columns(ctx, allg, f.nonlinear)
         cols.append(c)
     return np.column_stack(cols)
@@ -364,7 +364,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             mse_ho = float(np.mean(r_ho ** 2))
             need = _heldout_need(opt, mse_ho, noise, C_ho)
             if mse_ho - float(np.mean(new_ho ** 2)) < need:
-                log.debug("%s: held-out MSE %.4g -> %.4g, needs a drop of %.3g", eff.name, mse_ho,
+                log.debug("%s %s: held-out MSE %.4g -> %.4g, needs a drop of %.3g", eff.name, nl, mse_ho,
                           float(np.mean(new_ho ** 2)), need)
                 continue
             accepted = (eff, nl, labels, C_tr, C_ho, beta, new_tr, new_ho, dbic, rank)
@@ -397,25 +397,89 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
         beta = _solve(A, y_tr)
         return y_tr - A @ beta, y_ho - B @ beta
 
-    keep = list(range(len(chosen)))
-    while len(keep) > 1:
-        full_tr, full_ho = fit(keep)
-        rho = _rho(full_tr, S_tr.tau_s)
-        n_eff = max(len(tr) * (1 - rho) / (1 + rho), 10.0)
-        rss_full = float(full_tr @ full_tr)
-        worst, worst_score = None, math.inf
-        for i in keep:
-            red_tr, red_ho = fit([k for k in keep if k != i])
-            p = cols_tr[i].shape[1]
-            dbic = n_eff * math.log(float(red_tr @ red_tr) / max(rss_full, 1e-30)) - p * math.log(n_eff)
-            mse_ho = float(np.mean(red_ho ** 2))
-            need = _heldout_need(opt, mse_ho, noise, cols_ho[i])
-            ok = dbic >= opt.bic_margin and mse_ho - float(np.mean(full_ho ** 2)) >= need
-            if not ok and dbic < worst_score:
-                worst, worst_score = i, dbic
-        if worst is None:
-            break
-        keep.remove(worst)
+    def prune(keep):
+        keep = list(keep)
+        while len(keep) > 1:
+            full_tr, full_ho = fit(keep)
+            rho = _rho(full_tr, S_tr.tau_s)
+            n_eff = max(len(tr) * (1 - rho) / (1 + rho), 10.0)
+            rss_full = float(full_tr @ full_tr)
+            worst, worst_score = None, math.inf
+            for i in keep:
+                red_tr, red_ho = fit([k for k in keep if k != i])
+                p = cols_tr[i].shape[1]
+                dbic = n_eff * math.log(float(red_tr @ red_tr) / max(rss_full, 1e-30)) - p * math.log(n_eff)
+                mse_ho = float(np.mean(red_ho ** 2))
+                need = _heldout_need(opt, mse_ho, noise, cols_ho[i])
+                ok = dbic >= opt.bic_margin and mse_ho - float(np.mean(full_ho ** 2)) >= need
+                if not ok and dbic < worst_score:
+                    worst, worst_score = i, dbic
+            if worst is None:
+                break
+            keep.remove(worst)
+        return keep
+
+    def exchange(keep):
+        """Greedy forward selection can take a proxy early (a scale error standing in for
+        a bar length plus part of a lag not yet in): with the others in, try each
+        finding's place for every effect not chosen; take the best exchange that the
+        information criterion prefers and held-out data do not refuse, until none."""
+        for _ in range(len(keep) + 1):
+            full_tr, full_ho = fit(keep)
+            rho = _rho(full_tr, S_tr.tau_s)
+            n_eff = max(len(tr) * (1 - rho) / (1 + rho), 10.0)
+            rss_full = float(full_tr @ full_tr)
+            mse_full_ho = float(np.mean(full_ho ** 2))
+            best = None
+            names = {chosen[k][0].name for k in keep}
+            for i in keep:
+                rest = [k for k in keep if k != i]
+                red_tr, _ = fit(rest)
+                A_rest = np.column_stack([cols_tr[k] for k in rest]) if rest else np.zeros((len(tr), 0))
+                B_rest = np.column_stack([cols_ho[k] for k in rest]) if rest else np.zeros((len(ho), 0))
+                for eff in lib:
+                    if eff.name in names:
+                        continue
+                    try:
+                        nl = eff.search(ctx, S_tr, red_tr)
+                    except (ValueError, np.linalg.LinAlgError):
+                        nl = None
+                    if nl is None:
+                        continue
+                    C_tr, labels = eff.columns(ctx, S_tr, nl)
+                    if C_tr.shape[1] == 0 or not np.isfinite(C_tr).all():
+                        continue
+                    A1 = np.column_stack([A_rest, C_tr])
+                    beta = _solve(A1, y_tr)
+                    new_tr = y_tr - A1 @ beta
+                    rss = float(new_tr @ new_tr)
+                    dbic = (n_eff * math.log(rss_full / max(rss, 1e-30))
+                            + (cols_tr[i].shape[1] - C_tr.shape[1]) * math.log(n_eff))
+                    if dbic <= 0 or (best is not None and dbic <= best[0]):
+                        continue
+                    coef = beta[A_rest.shape[1]:]
+                    if not eff.physical(coef) or eff.implausible(
+                            eff.parameters(coef, labels, nl, ctx)):
+                        continue
+                    C_ho, _ = eff.columns(ctx, S_ho, nl)
+                    new_ho = y_ho - np.column_stack([B_rest, C_ho]) @ beta
+                    if float(np.mean(new_ho ** 2)) > mse_full_ho:
+                        continue
+                    best = (dbic, i, eff, nl, labels, C_tr, C_ho)
+            if best is None:
+                return keep
+            dbic, i, eff, nl, labels, C_tr, C_ho = best
+            log.debug("exchange: %s for %s (BIC %+.1f)", eff.name, chosen[i][0].name, dbic)
+            old = findings[i]
+            findings[i] = Finding(eff.name, eff.title, {}, nl, labels, old.rms_before_um,
+                                  old.rms_after_um, old.heldout_rms_before_um,
+                                  old.heldout_rms_after_um, old.delta_bic + dbic)
+            chosen[i] = (eff, nl, labels)
+            cols_tr[i], cols_ho[i] = C_tr, C_ho
+            keep = prune(keep)
+        return keep
+
+    keep = exchange(prune(range(len(chosen))))
     if keep:
         full_tr, _ = fit(keep)
         loss = {i: float(fit([k for k in keep if k != i])[0] @ fit([k for k in keep if k != i])[0])
@@ -472,10 +536,12 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                 nl2 = None
             if nl2 is None:
                 continue
-            C2, _ = other.columns(ctx, S_tr, nl2)
+            C2, labels2 = other.columns(ctx, S_tr, nl2)
             if C2.shape[1] == 0:
                 continue
             c2 = _solve(C2, sig)
+            if not other.physical(c2) or other.implausible(other.parameters(c2, labels2, nl2, ctx)):
+                continue  # only with parameters no machine has: not a mimic
             r2 = 1.0 - float(((sig - C2 @ c2) ** 2).sum()) / tot
             if r2 >= opt.mimic_r2:
                 f.mimics.append({"effect": other.name, "r2": round(r2, 4)})

@@ -359,16 +359,101 @@ class CyclicError(Effect):
                 "phase_deg": float(np.degrees(np.arctan2(coef[1], coef[0])))}
 
 
-class Vibration(Effect):
-    name, title = "vibration", "ripple locked to time (machine or spindle vibration)"
-    limits = {"amplitude_*": 10.0}
-    band_hz = (8.0, 250.0)
+def _mode_response(acc: np.ndarray, dt: float, f_hz: float, zeta: float) -> np.ndarray:
+    """Deflection of a structural mode (natural frequency ``f_hz``, damping ratio
+    ``zeta``, unit static compliance) driven by ``acc`` sampled every ``dt``: the exact
+    discretisation of x'' + 2 zeta w x' + w^2 x = w^2 a for an acceleration held over each
+    step (zero-order hold), so the frequency is not warped."""
+    from scipy.signal import cont2discrete, lfilter, lfilter_zi
 
-    def search(self, ctx, s, r):
-        """Spectral peak of the residual weighted by each axis' gain (a vibration along
-        an axis reaches the bar modulated by that gain), refined by least squares."""
+    w = 2 * np.pi * f_hz
+    b, a, _ = cont2discrete(([w * w], [1.0, 2 * zeta * w, w * w]), dt, method="zoh")
+    b = np.ravel(b)
+    # at rest in its static deflection under the first acceleration
+    y, _ = lfilter(b, a, acc, zi=lfilter_zi(b, a) * acc[0])
+    return y
+
+
+class Vibration(Effect):
+    """A structural mode of a linear axis, rung by that axis' commanded acceleration: the
+    axis deflects with it (static compliance, um per m/s^2) and rings at the mode's
+    frequency after every change of acceleration, seen along the bar through the axis'
+    gain.  Its static compliance cannot exceed what the whole axis mass on the mode's
+    stiffness gives, 1 / (2 pi f)^2 (4 um per m/s^2 at 80 Hz); beyond twice that it is
+    not a mode (a stiff, high mode with a large compliance is a servo lag's v^2 / R in
+    disguise).  A steady ripple from outside the motion (a pump, the floor) is the other
+    form: a sinusoid locked to time.  The search takes whichever explains more."""
+
+    name, title = "vibration", "vibration: an axis' structural mode rung by its acceleration, or a steady ripple"
+    limits = {"amplitude_*": 10.0, "peak_*": 10.0}
+    band_hz = (8.0, 250.0)
+    dampings = (0.02, 0.05, 0.12)
+
+    def _acc(self, ctx, j):
+        key = ("axis_acceleration", j)
+        if key not in ctx._slow:
+            ctx._slow[key] = np.gradient(ctx.qdot[:, j], ctx.t_s) * 1e-3  # m/s^2
+        return ctx._slow[key]
+
+    def _mode_columns(self, ctx, s, f_hz, zeta, sub=None):
+        tau = s.tau_s if sub is None else s.tau_s[sub]
+        idx = s.idx if sub is None else s.idx[sub]
+        dt = float(ctx.t_s[1] - ctx.t_s[0])
+        cols = []
+        for j in linear_axes(ctx):
+            x = _mode_response(self._acc(ctx, j), dt, f_hz, zeta)
+            cols.append(ctx.gain[idx, j] * np.interp(tau, ctx.t_s, x))
+        return np.column_stack(cols)
+
+    def _mode_search(self, ctx, s, r):
+        """Frequency and damping on a grid (log-spaced frequencies over the band, three
+        dampings), refined on finer grids around the best.  The ringing is read at the
+        aligned timing: an alignment a few ms off (weak timing) loses a mode of tens of
+        Hz, which the report's timing warning covers."""
+        if ctx.n < 10 or not linear_axes(ctx) or len(r) < 1000:
+            return 0.0, None
+        sub = np.sort(np.random.default_rng(3).choice(len(r), min(len(r), 40000), replace=False))
+        rs = r[sub]
+
+        # a candidate is judged by its ringing: the deflection that follows the acceleration
+        # and that deflection's timing derivative are in every candidate's fit (they read
+        # as a lag would, and as an alignment a few ms off)
+        dt = float(ctx.t_s[1] - ctx.t_s[0])
+        idx, tau = s.idx[sub], s.tau_s[sub]
+        base = []
+        for j in linear_axes(ctx):
+            a = self._acc(ctx, j)
+            base += [ctx.gain[idx, j] * np.interp(tau, ctx.t_s, a),
+                     ctx.gain[idx, j] * np.interp(tau, ctx.t_s, np.gradient(a, dt)) * 1e-2]
+        base = np.column_stack(base)
+        nb = base.shape[1]
+
+        def gain(f, z):
+            C = np.column_stack([base, self._mode_columns(ctx, s, f, z, sub)])
+            coef, *_ = np.linalg.lstsq(C, rs, rcond=1e-8)
+            if np.max(np.abs(coef[nb:])) > 2.0e6 / (2 * np.pi * f) ** 2:
+                return 0.0  # not a mode (see implausible)
+            fit = C @ coef
+            return float(rs @ rs - (rs - fit) @ (rs - fit))
+
+        freqs = np.geomspace(*self.band_hz, 48)
+        best = max(((gain(f, z), f, z) for f in freqs for z in self.dampings))
+        _, f, z = best
+        step = freqs[1] / freqs[0]
+        for _ in range(2):  # refine: frequency, then damping, on finer grids
+            best = max([best] + [(gain(f * step ** e, z), f * step ** e, z)
+                                 for e in np.linspace(-0.6, 0.6, 7)
+                                 if self.band_hz[0] <= f * step ** e <= self.band_hz[1]])
+            _, f, z = best
+            best = max([best] + [(gain(f, z * m), f, z * m) for m in (0.6, 0.8, 1.25, 1.6)
+                                 if 0.005 <= z * m <= 0.3])
+            _, f, z = best
+            step = step ** 0.25
+        return best[0] * len(r) / len(sub), {"frequency_hz": float(f), "damping": float(z)}
+
+    def _steady_search(self, ctx, s, r):
         if len(s.tau_s) < 1000:
-            return None
+            return 0.0, None
         order = np.argsort(s.tau_s)
         t = s.tau_s[order]
         rate = 1000.0
@@ -378,7 +463,7 @@ class Vibration(Effect):
         freqs = np.fft.rfftfreq(nfft, 1.0 / rate)
         band = (freqs >= self.band_hz[0]) & (freqs <= self.band_hz[1])
         if not band.any():
-            return None
+            return 0.0, None
         win = np.hanning(n)
         sub = np.sort(np.random.default_rng(2).choice(len(r), min(len(r), 60000), replace=False))
         best = (0.0, None)
@@ -396,10 +481,28 @@ class Vibration(Effect):
             if gains[m] > best[0]:
                 best = (float(gains[m]), float(cand[m]))
         if best[1] is None:
+            return 0.0, None
+        return best[0] * len(r) / len(sub), {"frequency_hz": best[1], "steady": True}
+
+    def search(self, ctx, s, r):
+        """Both forms, each fitted to the residual; the one that explains more (its
+        gain per sample, the steady form judged with a full fit over every axis)."""
+        g_mode, nl_mode = self._mode_search(ctx, s, r)
+        g_steady, nl_steady = self._steady_search(ctx, s, r)
+        if nl_steady is not None:
+            C, _ = self.columns(ctx, s, nl_steady)
+            coef, *_ = np.linalg.lstsq(C, r, rcond=1e-8)
+            fit = C @ coef
+            g_steady = float(r @ r - (r - fit) @ (r - fit))
+        if nl_mode is None and nl_steady is None:
             return None
-        return {"frequency_hz": best[1]}
+        return nl_mode if nl_steady is None or (nl_mode is not None and g_mode >= g_steady) \
+            else nl_steady
 
     def columns(self, ctx, s, nl):
+        if not nl.get("steady"):
+            labels = tuple(f"compliance_{ctx.axis_names[j]}_um_per_m_s2" for j in linear_axes(ctx))
+            return self._mode_columns(ctx, s, nl["frequency_hz"], nl["damping"]), labels
         ph = 2 * np.pi * nl["frequency_hz"] * s.tau_s
         sn, cs = np.sin(ph), np.cos(ph)
         cols, labels = [], []
@@ -409,8 +512,31 @@ class Vibration(Effect):
             labels += [f"{ctx.axis_names[j]}_sin_um", f"{ctx.axis_names[j]}_cos_um"]
         return np.column_stack(cols), tuple(labels)
 
+    def implausible(self, params):
+        why = super().implausible(params)
+        if why or params.get("form") != "structural mode":
+            return why
+        bound = 2.0e6 / (2 * np.pi * params["frequency_hz"]) ** 2  # um per m/s^2
+        for key, value in params.items():
+            if key.startswith("compliance_") and abs(value) > bound:
+                return (f"{key} = {value:.4g} exceeds {bound:.3g}, twice the whole axis mass "
+                        f"on a mode at {params['frequency_hz']:.0f} Hz")
+        return None
+
     def parameters(self, coef, labels, nl, ctx):
         out = {"frequency_hz": nl["frequency_hz"]}
+        if not nl.get("steady"):
+            out["form"] = "structural mode"
+            out["damping"] = nl["damping"]
+            for c, j in zip(coef, linear_axes(ctx)):
+                name = ctx.axis_names[j]
+                out[f"compliance_{name}_um_per_m_s2"] = float(c)
+                # the largest deflection it brings on this program
+                x = _mode_response(self._acc(ctx, j), float(ctx.t_s[1] - ctx.t_s[0]),
+                                   nl["frequency_hz"], nl["damping"])
+                out[f"peak_{name}_um"] = float(abs(c) * np.max(np.abs(x)))
+            return out
+        out["form"] = "steady ripple"
         for n, j in enumerate(linear_axes(ctx)):
             out[f"amplitude_{ctx.axis_names[j]}_um"] = float(np.hypot(coef[2 * n], coef[2 * n + 1]))
         return out
