@@ -426,17 +426,40 @@ class Vibration(Effect):
             base += [ctx.gain[idx, j] * np.interp(tau, ctx.t_s, a),
                      ctx.gain[idx, j] * np.interp(tau, ctx.t_s, np.gradient(a, dt)) * 1e-2]
         base = np.column_stack(base)
-        nb = base.shape[1]
+
+        # the coarse grid's columns on this sample set are kept with the context: every
+        # selection step and exchange searches the same samples again
+        key = ("mode_grid", len(tau), float(tau[0]), float(tau[-1]), float(tau.sum()))
+        grid = ctx._slow.setdefault(key, {})
+
+        def columns(f, z):
+            if (f, z) in grid:
+                return grid[(f, z)]
+            return self._mode_columns(ctx, s, f, z, sub)
+
+        q, _ = np.linalg.qr(base)
+        rp = rs - q @ (q.T @ rs)
 
         def gain(f, z):
-            C = np.column_stack([base, self._mode_columns(ctx, s, f, z, sub)])
-            coef, *_ = np.linalg.lstsq(C, rs, rcond=1e-8)
-            if np.max(np.abs(coef[nb:])) > 2.0e6 / (2 * np.pi * f) ** 2:
+            # what the mode adds beyond the base (Frisch-Waugh: its coefficients in the
+            # joint fit are those of the fit of the base's residual on its own residual)
+            C = columns(f, z).astype(float)
+            C = C - q @ (q.T @ C)
+            G = C.T @ C
+            b = C.T @ rp
+            try:
+                coef = np.linalg.solve(G + 1e-12 * np.trace(G) * np.eye(len(G)), b)
+            except np.linalg.LinAlgError:
+                return 0.0
+            if np.max(np.abs(coef)) > 2.0e6 / (2 * np.pi * f) ** 2:
                 return 0.0  # not a mode (see implausible)
-            fit = C @ coef
-            return float(rs @ rs - (rs - fit) @ (rs - fit))
+            return float(coef @ b)
 
         freqs = np.geomspace(*self.band_hz, 48)
+        if not grid:
+            for f in freqs:
+                for z in self.dampings:
+                    grid[(f, z)] = self._mode_columns(ctx, s, f, z, sub).astype(np.float32)
         best = max(((gain(f, z), f, z) for f in freqs for z in self.dampings))
         _, f, z = best
         step = freqs[1] / freqs[0]
@@ -487,13 +510,20 @@ class Vibration(Effect):
     def search(self, ctx, s, r):
         """Both forms, each fitted to the residual; the one that explains more (its
         gain per sample, the steady form judged with a full fit over every axis)."""
-        g_mode, nl_mode = self._mode_search(ctx, s, r)
-        g_steady, nl_steady = self._steady_search(ctx, s, r)
-        if nl_steady is not None:
-            C, _ = self.columns(ctx, s, nl_steady)
+        _, nl_mode = self._mode_search(ctx, s, r)
+        _, nl_steady = self._steady_search(ctx, s, r)
+        g_mode = g_steady = 0.0
+        for nl in (nl_mode, nl_steady):
+            if nl is None:
+                continue
+            C, _ = self.columns(ctx, s, nl)
             coef, *_ = np.linalg.lstsq(C, r, rcond=1e-8)
             fit = C @ coef
-            g_steady = float(r @ r - (r - fit) @ (r - fit))
+            g = float(r @ r - (r - fit) @ (r - fit))
+            if nl is nl_mode:
+                g_mode = g
+            else:
+                g_steady = g
         if nl_mode is None and nl_steady is None:
             return None
         return nl_mode if nl_steady is None or (nl_mode is not None and g_mode >= g_steady) \
