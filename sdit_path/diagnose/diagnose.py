@@ -279,6 +279,21 @@ def _model_columns(ctx, lib, expected, findings) -> np.ndarray:
     return np.column_stack(cols)
 
 
+def _candidate(eff: Effect, ctx: Context, S: Samples, r: np.ndarray):
+    """An effect's nonlinear parameters searched on the residual ``r`` and its columns
+    there, or None when it has nothing to offer."""
+    try:
+        nl = eff.search(ctx, S, r)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    if nl is None:
+        return None
+    C, labels = eff.columns(ctx, S, nl)
+    if C.shape[1] == 0 or not np.isfinite(C).all():
+        return None
+    return nl, C, labels
+
+
 def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
              y: np.ndarray, al: Alignment, opt: Options, step, finalize: bool = True,
              mimic_library: list[Effect] | None = None, geometry=None) -> Diagnosis:
@@ -317,15 +332,10 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
         for eff in lib:
             if any(eff.name == c[0].name for c in chosen):
                 continue
-            try:
-                nl = eff.search(ctx, S_tr, r_tr)
-            except (ValueError, np.linalg.LinAlgError):
-                nl = None
-            if nl is None:
+            cand = _candidate(eff, ctx, S_tr, r_tr)
+            if cand is None:
                 continue
-            C_tr, labels = eff.columns(ctx, S_tr, nl)
-            if C_tr.shape[1] == 0 or not np.isfinite(C_tr).all():
-                continue
+            nl, C_tr, labels = cand
             Cp = C_tr - q @ (q.T @ C_tr)
             keep = np.sqrt((Cp * Cp).sum(0)) > 1e-9 * max(1.0, float(np.sqrt((C_tr * C_tr).sum(0)).max()))
             if not keep.any():
@@ -440,15 +450,10 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                 for eff in lib:
                     if eff.name in names:
                         continue
-                    try:
-                        nl = eff.search(ctx, S_tr, red_tr)
-                    except (ValueError, np.linalg.LinAlgError):
-                        nl = None
-                    if nl is None:
+                    cand = _candidate(eff, ctx, S_tr, red_tr)
+                    if cand is None:
                         continue
-                    C_tr, labels = eff.columns(ctx, S_tr, nl)
-                    if C_tr.shape[1] == 0 or not np.isfinite(C_tr).all():
-                        continue
+                    nl, C_tr, labels = cand
                     A1 = np.column_stack([A_rest, C_tr])
                     beta = _solve(A1, y_tr)
                     new_tr = y_tr - A1 @ beta
