@@ -411,7 +411,7 @@ class Vibration(Effect):
         aligned timing: an alignment a few ms off (weak timing) loses a mode of tens of
         Hz, which the report's timing warning covers."""
         if ctx.n < 10 or not linear_axes(ctx) or len(r) < 1000:
-            return 0.0, None
+            return None
         sub = np.sort(np.random.default_rng(3).choice(len(r), min(len(r), 40000), replace=False))
         rs = r[sub]
 
@@ -472,11 +472,11 @@ class Vibration(Effect):
                                  if 0.005 <= z * m <= 0.3])
             _, f, z = best
             step = step ** 0.25
-        return best[0] * len(r) / len(sub), {"frequency_hz": float(f), "damping": float(z)}
+        return {"frequency_hz": float(f), "damping": float(z)}
 
     def _steady_search(self, ctx, s, r):
         if len(s.tau_s) < 1000:
-            return 0.0, None
+            return None
         order = np.argsort(s.tau_s)
         t = s.tau_s[order]
         rate = 1000.0
@@ -486,7 +486,7 @@ class Vibration(Effect):
         freqs = np.fft.rfftfreq(nfft, 1.0 / rate)
         band = (freqs >= self.band_hz[0]) & (freqs <= self.band_hz[1])
         if not band.any():
-            return 0.0, None
+            return None
         win = np.hanning(n)
         sub = np.sort(np.random.default_rng(2).choice(len(r), min(len(r), 60000), replace=False))
         best = (0.0, None)
@@ -504,14 +504,14 @@ class Vibration(Effect):
             if gains[m] > best[0]:
                 best = (float(gains[m]), float(cand[m]))
         if best[1] is None:
-            return 0.0, None
-        return best[0] * len(r) / len(sub), {"frequency_hz": best[1], "steady": True}
+            return None
+        return {"frequency_hz": best[1], "steady": True}
 
     def search(self, ctx, s, r):
         """Both forms, each fitted to the residual; the one that explains more (its
         gain per sample, the steady form judged with a full fit over every axis)."""
-        _, nl_mode = self._mode_search(ctx, s, r)
-        _, nl_steady = self._steady_search(ctx, s, r)
+        nl_mode = self._mode_search(ctx, s, r)
+        nl_steady = self._steady_search(ctx, s, r)
         g_mode = g_steady = 0.0
         for nl in (nl_mode, nl_steady):
             if nl is None:
