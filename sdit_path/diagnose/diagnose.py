@@ -322,6 +322,19 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
     cols_tr: list[np.ndarray] = []
     cols_ho: list[np.ndarray] = []
     rms = lambda v: float(np.sqrt(np.mean(v * v))) if len(v) else 0.0  # noqa: E731
+    # searches on the residual of a given set of columns are deterministic: the exchange
+    # step below meets the forward steps' residuals again (a finding's place tried with
+    # the findings chosen before it), so they are kept, keyed by those columns
+    searched: dict[tuple, dict] = {}
+    alive: list[np.ndarray] = []  # the keys are ids: keep their arrays
+
+    def candidate(eff, rest_cols, r):
+        key = tuple(id(c) for c in rest_cols)
+        memo = searched.setdefault(key, {})
+        if eff.name not in memo:
+            memo[eff.name] = _candidate(eff, ctx, S_tr, r)
+        return memo[eff.name]
+
     while len(findings) < opt.max_effects:
         step(f"selection step {len(findings) + 1}")
         rho = _rho(r_tr, S_tr.tau_s)
@@ -332,7 +345,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
         for eff in lib:
             if any(eff.name == c[0].name for c in chosen):
                 continue
-            cand = _candidate(eff, ctx, S_tr, r_tr)
+            cand = candidate(eff, cols_tr, r_tr)
             if cand is None:
                 continue
             nl, C_tr, labels = cand
@@ -393,6 +406,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
         chosen.append((eff, nl, labels))
         cols_tr.append(C_tr)
         cols_ho.append(C_ho)
+        alive.append(C_tr)
         A_tr = np.column_stack([A_tr, C_tr])
         A_ho = np.column_stack([A_ho, C_ho])
         r_tr, r_ho = new_tr, new_ho
@@ -450,7 +464,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                 for eff in lib:
                     if eff.name in names:
                         continue
-                    cand = _candidate(eff, ctx, S_tr, red_tr)
+                    cand = candidate(eff, [cols_tr[k] for k in rest], red_tr)
                     if cand is None:
                         continue
                     nl, C_tr, labels = cand
@@ -481,6 +495,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                                   old.heldout_rms_after_um, old.delta_bic + dbic)
             chosen[i] = (eff, nl, labels)
             cols_tr[i], cols_ho[i] = C_tr, C_ho
+            alive.append(C_tr)
             keep = prune(keep)
         return keep
 

@@ -427,40 +427,44 @@ class Vibration(Effect):
                      ctx.gain[idx, j] * np.interp(tau, ctx.t_s, np.gradient(a, dt)) * 1e-2]
         base = np.column_stack(base)
 
-        # the coarse grid's columns on this sample set are kept with the context: every
-        # selection step and exchange searches the same samples again
-        key = ("mode_grid", len(tau), float(tau[0]), float(tau[-1]), float(tau.sum()))
-        grid = ctx._slow.setdefault(key, {})
-
-        def columns(f, z):
-            if (f, z) in grid:
-                return grid[(f, z)]
-            return self._mode_columns(ctx, s, f, z, sub)
-
         q, _ = np.linalg.qr(base)
         rp = rs - q @ (q.T @ rs)
+        bound = lambda f: 2.0e6 / (2 * np.pi * f) ** 2  # noqa: E731  (see implausible)
 
-        def gain(f, z):
+        def judge(G, b, f):
             # what the mode adds beyond the base (Frisch-Waugh: its coefficients in the
             # joint fit are those of the fit of the base's residual on its own residual)
-            C = columns(f, z).astype(float)
-            C = C - q @ (q.T @ C)
-            G = C.T @ C
-            b = C.T @ rp
             try:
                 coef = np.linalg.solve(G + 1e-12 * np.trace(G) * np.eye(len(G)), b)
             except np.linalg.LinAlgError:
                 return 0.0
-            if np.max(np.abs(coef)) > 2.0e6 / (2 * np.pi * f) ** 2:
+            if np.max(np.abs(coef)) > bound(f):
                 return 0.0  # not a mode (see implausible)
             return float(coef @ b)
 
+        def gain(f, z):
+            C = self._mode_columns(ctx, s, f, z, sub)
+            C = C - q @ (q.T @ C)
+            return judge(C.T @ C, C.T @ rp, f)
+
+        # the coarse grid's columns beyond the base on this sample set depend on the
+        # samples only: kept with the context (every selection step and exchange
+        # searches the same samples again), all judged with one product
         freqs = np.geomspace(*self.band_hz, 48)
-        if not grid:
+        key = ("mode_grid", len(tau), float(tau[0]), float(tau[-1]), float(tau.sum()))
+        if key not in ctx._slow:
+            blocks, grams = [], []
             for f in freqs:
                 for z in self.dampings:
-                    grid[(f, z)] = self._mode_columns(ctx, s, f, z, sub).astype(np.float32)
-        best = max(((gain(f, z), f, z) for f in freqs for z in self.dampings))
+                    C = self._mode_columns(ctx, s, f, z, sub)
+                    C = C - q @ (q.T @ C)
+                    blocks.append(C)
+                    grams.append(C.T @ C)
+            ctx._slow[key] = (np.column_stack(blocks), grams)
+        P, grams = ctx._slow[key]
+        B = (P.T @ rp).reshape(len(grams), -1)
+        pairs = [(f, z) for f in freqs for z in self.dampings]
+        best = max((judge(G, b, f), f, z) for (f, z), G, b in zip(pairs, grams, B))
         _, f, z = best
         step = freqs[1] / freqs[0]
         for _ in range(2):  # refine: frequency, then damping, on finer grids
