@@ -5,6 +5,7 @@ instrument and a set-up residual in every trace; nothing from sdit_path).
     python bench/blind_check.py [--per-program 51] [--plans DIR] [--seed 1] [--jobs 2]
                                 [--json OUT]
     python bench/blind_check.py --case PLAN:PROGRAM [--case ...] [--per-program 17] ...
+    python bench/blind_check.py --rescore OUT.json [--programs SDIT_C,SDIT_B]
 
 Without ``--case`` it plans the issue's three programs (SDIT_C of the default sample at
 F600, SDIT_B of it at F2000, SDIT5_C of the 5-axis sample) into ``--plans DIR`` (kept
@@ -191,9 +192,15 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--rescore", type=Path, default=None,
                     help="Print the table of an earlier --json file.")
+    ap.add_argument("--programs", default=None,
+                    help="With --rescore: only these programs (comma-separated).")
     args = ap.parse_args()
     if args.rescore:
-        table(json.loads(args.rescore.read_text()))
+        rows = json.loads(args.rescore.read_text())
+        if args.programs:
+            keep = set(args.programs.split(","))
+            rows = [r for r in rows if r["program"] in keep]
+        table(rows)
         return
     if args.case is None:
         if args.plans is None:

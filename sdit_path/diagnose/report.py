@@ -77,7 +77,8 @@ def summary_text(d: Diagnosis) -> str:
         lines.append(f"  the set-up offset stepped by {jump['size_um']:.2f} um (dx, dy, dz "
                      + ", ".join(f"{v:+.2f}" for v in jump["shift_um"])
                      + f") at {jump['at_s']:.2f} s of the recording: a mount slip or a knock? "
-                     f"Taken out for the timing only; it stays in the gap (no effect holds it)")
+                     f"No effect of the library holds it: taken out before the timing and the effects "
+                     f"were fitted, it counts as unexplained")
     w = d.gap["where"]
     if w.get("by_part_rms_um"):
         lines.append(f"  layer {w.get('layer', '?')}, RMS by part (um): " + ", ".join(
@@ -112,6 +113,8 @@ def summary_text(d: Diagnosis) -> str:
     u = d.unexplained
     verdict = "NOT explained by the library" if u["significant"] else "at the noise level"
     lines.append(f"Unexplained: RMS {u['rms_um']:.3f} um ({verdict}).")
+    if u.get("note"):
+        lines.append(f"  {u['note']}")
     if u["significant"] and u["where"].get("segments"):
         lines.append("  strongest in: " + ", ".join(u["where"]["segments"][:8]))
         if u["where"].get("time_windows_s"):
