@@ -166,6 +166,12 @@ def table(results: list[dict]) -> None:
           f"{100 * float(np.median(shrink)) if shrink else float('nan'):.0f} %   target >= 70 %")
     print(f"offset within delay + max(2 ms, 3 CRB): {frac(results, 'offset_ok')}")
     print(f"clock within max(5 ppm, 3 CRB):         {frac(results, 'clock_ok')}")
+    # 3 bounds fail now and then even for an efficient estimator (0.27 % per number:
+    # about one of 150 cases x 2 numbers); 4 bounds (6e-5 per number) hold on every case
+    # of 150 with 98 % probability
+    in4 = sum(abs(r["offset_beyond_delay_ms"]) <= max(2.0, 4 * r["offset_bound_ms"]) and
+              abs(r["clock_error_ppm"]) <= max(5.0, 4 * r["clock_bound_ppm"]) for r in results)
+    print(f"both within max(2 ms / 5 ppm, 4 CRB):   {in4} of {len(results)}")
     strict_o = sum(abs(r["offset_beyond_delay_ms"]) <= 2.0 for r in results)
     strict_c = sum(abs(r["clock_error_ppm"]) <= 5.0 for r in results)
     print(f"(the issue's literal targets: offset {strict_o}, clock {strict_c} of {len(results)})")

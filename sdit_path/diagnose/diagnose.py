@@ -193,9 +193,38 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     pose = _needed_blocks(ctx, expected, t_m, y, al, X[:, 2:],
                           pose_blocks(plan, ctx), options.bic_margin)
     extra = np.column_stack([*pose, X[:, 2:]])
-    al, jump = _realign(ctx, expected, t_m, y, extra, al)
-    step("realigned with the findings")
+    first_al = al
+    al, jump = _realign(ctx, expected, t_m, y, extra, first_al)
     names = {f.effect for f in first.findings}
+    # a finding one feed cannot tell from its partner (servo lag / contour smoothing) was
+    # chosen at the first timing, which the one it is not may have bent (a lag read as a
+    # smoothing leaves the start 17 ms late): the timing is searched with the partner in
+    # its place too, and the better fit's timing kept; both then compete again
+    for f in first.findings:
+        partner = next((next(iter(pair - {f.effect})) for pair in ALIASED if f.effect in pair),
+                       None)
+        if partner is None or partner in names:
+            continue
+        Xa = _model_columns(ctx, lib, expected, [g for g in first.findings if g is not f])
+        other, jump_o = first_al, None
+        for _ in range(3):  # its parameters and the timing depend on each other
+            cols = _partner_columns(ctx, next(e for e in lib if e.name == partner), expected,
+                                    t_m, y, other)
+            if cols is None:
+                break
+            prev = other
+            other, jump_o = _realign(ctx, expected, t_m, y,
+                                     np.column_stack([*pose, Xa[:, 2:], cols]), prev)
+            if abs(other.offset_s - prev.offset_s) < 1e-3:
+                break
+        if cols is None:
+            continue
+        log.debug("aliased %s -> %s: rms %.5f vs %.5f, offset %.4f vs %.4f", f.effect, partner,
+                  other.rms_um, al.rms_um, other.offset_s, al.offset_s)
+        if other.rms_um < al.rms_um:
+            al, jump = other, jump_o
+        names.add(partner)
+    step("realigned with the findings")
     # a step of the set-up is no effect: taken out before the effects are judged again,
     # so that none of them (lateral play, backlash) is named for it
     y_fit = y if jump is None else y - jump.reading_um(ctx, al, t_m)
@@ -262,6 +291,30 @@ def _realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     if n_eff * math.log(rss_p / max(rss_j, 1e-30)) - 4 * math.log(n_eff) < margin:
         return plain, None
     return al, jump
+
+
+def _partner_columns(ctx: Context, eff: Effect, expected: np.ndarray, t_m: np.ndarray,
+                     y: np.ndarray, al: Alignment, max_samples: int = 60_000):
+    """``eff``'s columns on the trajectory grid, its nonlinear parameters searched on
+    what the set-up leaves of the reading at the timing ``al``; None when it has nothing
+    to offer."""
+    tau = al.program_time(t_m)
+    ok = np.flatnonzero(np.isfinite(y) & (tau >= ctx.t_s[0]) & (tau <= ctx.t_s[-1]))
+    if len(ok) < 1000:
+        return None
+    ok = ok[:: max(1, len(ok) // max_samples)]
+    tt = tau[ok]
+    idx = np.clip(np.rint((tt - ctx.t_s[0]) / (ctx.t_s[-1] - ctx.t_s[0]) * (ctx.n - 1)).astype(int),
+                  0, ctx.n - 1)
+    # the set-up only: the generic columns' v^2 and acceleration terms are the lag's own
+    # signature and would leave it nothing but its longest tail
+    G = _at(ctx.t_s, np.column_stack([expected, np.ones(ctx.n), ctx.u]), tt)
+    r = y[ok] - G @ _lsq(G, y[ok])
+    cand = _candidate(eff, ctx, Samples(idx, tt), r)
+    if cand is None:
+        return None
+    log.debug("partner %s: %s", eff.name, cand[0])
+    return eff.columns(ctx, Samples(np.arange(ctx.n), ctx.t_s), cand[0])[0]
 
 
 def _fit_stats(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, al: Alignment,
