@@ -322,8 +322,7 @@ def _fit_stats(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, al: 
     """Residual sum of squares of the model ``X`` at the timing ``al`` and the samples
     it counts as (by the residual's correlation), over the same contiguous samples."""
     tau = al.program_time(t_m)
-    ok = np.isfinite(y) & (t_m >= t_m[0])
-    idx = np.flatnonzero(ok)[:max_samples]
+    idx = np.flatnonzero(np.isfinite(y))[:max_samples]
     tt = np.clip(tau[idx], ctx.t_s[0], ctx.t_s[-1])
     A = _at(ctx.t_s, X, tt)
     r = y[idx] - A @ _lsq(A, y[idx])
