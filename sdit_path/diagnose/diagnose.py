@@ -23,7 +23,7 @@ from ..errormodel.errorset import ErrorSet
 from ..machine.kinematics import Kinematics
 from ..planfiles import PlanFiles
 from ..sim.simulate import Trace, error_values
-from .align import Alignment, SetupStep, _at, _lsq, align, generic_columns, setup_step
+from .align import Alignment, SetupStep, _at, _lsq, align, generic_columns, refine, setup_step
 from .context import Context, build_context, strided
 from .effects import GEOMETRIC, PRIOR_ORDER, Backlash, Effect, GeometryBeyond, LateralPlay, \
     ReversalSpike, Samples, ScaleMismatch, ServoMismatch, Squareness, library, linear_axes
@@ -189,48 +189,33 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     # timing the first search missed, and the columns that made that search safe
     # (every kind of geometry, lag, reversal) blur the timing of a trace they do not
     # describe
+    log.debug("first pass: %s at offset %.4f s, clock %.1f ppm",
+              [(f.effect, f.nonlinear) for f in first.findings], al.offset_s, al.clock_ppm)
     X = _model_columns(ctx, lib, expected, first.findings)
     pose = _needed_blocks(ctx, expected, t_m, y, al, X[:, 2:],
                           pose_blocks(plan, ctx), options.bic_margin)
-    extra = np.column_stack([*pose, X[:, 2:]])
     first_al = al
-    al, jump = _realign(ctx, expected, t_m, y, extra, first_al)
-    names = {f.effect for f in first.findings}
-    # a finding one feed cannot tell from its partner (servo lag / contour smoothing) was
-    # chosen at the first timing, which the one it is not may have bent (a lag read as a
-    # smoothing leaves the start 17 ms late): the timing is searched with the partner in
-    # its place too, and the better fit's timing kept; both then compete again
-    for f in first.findings:
-        partner = next((next(iter(pair - {f.effect})) for pair in ALIASED if f.effect in pair),
-                       None)
-        if partner is None or partner in names:
-            continue
-        Xa = _model_columns(ctx, lib, expected, [g for g in first.findings if g is not f])
-        other, jump_o = first_al, None
-        for _ in range(3):  # its parameters and the timing depend on each other
-            cols = _partner_columns(ctx, next(e for e in lib if e.name == partner), expected,
-                                    t_m, y, other)
-            if cols is None:
-                break
-            prev = other
-            other, jump_o = _realign(ctx, expected, t_m, y,
-                                     np.column_stack([*pose, Xa[:, 2:], cols]), prev)
-            if abs(other.offset_s - prev.offset_s) < 1e-3:
-                break
-        if cols is None:
-            continue
-        log.debug("aliased %s -> %s: rms %.5f vs %.5f, offset %.4f vs %.4f", f.effect, partner,
-                  other.rms_um, al.rms_um, other.offset_s, al.offset_s)
-        if other.rms_um < al.rms_um:
-            al, jump = other, jump_o
-        names.add(partner)
+    al, jump, names = _settle(ctx, lib, expected, t_m, y, pose, first.findings, first_al)
     step("realigned with the findings")
-    # a step of the set-up is no effect: taken out before the effects are judged again,
-    # so that none of them (lateral play, backlash) is named for it
-    y_fit = y if jump is None else y - jump.reading_um(ctx, al, t_m)
-    result = _explain(ctx, [e for e in lib if e.name in names], expected, t_m, y_fit, al, options,
-                      step, mimic_library=lib,
-                      geometry=GeometryBeyond(plan.config.machine, plan.tested_travel()))
+    geometry = GeometryBeyond(plan.config.machine, plan.tested_travel())
+
+    def explain(names, al, jump):
+        # a step of the set-up is no effect: taken out before the effects are judged
+        # again, so that none of them (lateral play, backlash) is named for it
+        y_fit = y if jump is None else y - jump.reading_um(ctx, al, t_m)
+        return _explain(ctx, [e for e in lib if e.name in names], expected, t_m, y_fit, al,
+                        options, step, mimic_library=lib, geometry=geometry)
+
+    result = explain(names, al, jump)
+    kept = {f.effect for f in result.findings}
+    by = {e.name: e for e in lib}
+    if kept != names and any(by[f.effect].timing_parameter for f in result.findings):
+        # a lag kept without what it shared the first timing with (a contour smoothing
+        # found beside it) reads the start afresh: once more with what was kept
+        log.debug("settling again with %s", sorted(kept))
+        al, jump, _ = _settle(ctx, lib, expected, t_m, y, pose, result.findings, first_al,
+                              partners=False)
+        result = explain(kept, al, jump)
     earlier = {f.effect: f for f in first.findings}
     for f in result.findings:  # the competition was the whole library in the first pass
         if f.effect in earlier:
@@ -254,6 +239,53 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     entry = next((p for p in plan.manifest.get("programs", []) if p["name"] == program), {})
     result.gap["where"] = {"layer": entry.get("layer", ""), **result.gap["where"]}
     return result
+
+
+def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
+            y: np.ndarray, pose: list[np.ndarray], findings: list, first_al: Alignment,
+            partners: bool = True) -> tuple[Alignment, SetupStep | None, set]:
+    """The timing searched afresh with ``findings`` (and the pose blocks), their lags
+    profiled with it; with ``partners``, a finding one feed cannot tell from its partner
+    also tried with the partner in its place.  The alignment, the set-up step (or None)
+    and the effects to judge again."""
+    X = _model_columns(ctx, lib, expected, findings)
+    al, jump = _realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:]]), first_al)
+    if _profile_timing(ctx, lib, expected, t_m, y, pose, findings, al, jump):
+        # the lagged findings' columns changed with it: the timing searched again
+        X = _model_columns(ctx, lib, expected, findings)
+        al, jump = _realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:]]), first_al)
+    names = {f.effect for f in findings}
+    if not partners:
+        return al, jump, names
+    # a finding one feed cannot tell from its partner (servo lag / contour smoothing) was
+    # chosen at the first timing, which the one it is not may have bent (a lag read as a
+    # smoothing leaves the start 17 ms late): the timing is searched with the partner in
+    # its place too, and the better fit's timing kept; both then compete again
+    for f in findings:
+        partner = next((next(iter(pair - {f.effect})) for pair in ALIASED if f.effect in pair),
+                       None)
+        if partner is None or partner in names:
+            continue
+        Xa = _model_columns(ctx, lib, expected, [g for g in findings if g is not f])
+        other, jump_o = first_al, None
+        for _ in range(3):  # its parameters and the timing depend on each other
+            cols = _partner_columns(ctx, next(e for e in lib if e.name == partner), expected,
+                                    t_m, y, other)
+            if cols is None:
+                break
+            prev = other
+            other, jump_o = _realign(ctx, expected, t_m, y,
+                                     np.column_stack([*pose, Xa[:, 2:], cols]), prev)
+            if abs(other.offset_s - prev.offset_s) < 1e-3:
+                break
+        if cols is None:
+            continue
+        log.debug("aliased %s -> %s: rms %.5f vs %.5f, offset %.4f vs %.4f", f.effect, partner,
+                  other.rms_um, al.rms_um, other.offset_s, al.offset_s)
+        if other.rms_um < al.rms_um:
+            al, jump = other, jump_o
+        names.add(partner)
+    return al, jump, names
 
 
 def _realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
@@ -291,6 +323,53 @@ def _realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     if n_eff * math.log(rss_p / max(rss_j, 1e-30)) - 4 * math.log(n_eff) < margin:
         return plain, None
     return al, jump
+
+
+def _profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
+                    y: np.ndarray, pose: list[np.ndarray], findings: list, al: Alignment,
+                    jump: SetupStep | None) -> bool:
+    """Lags trade with the recording's start: the alignment puts the reference lag into
+    the offset, and a finding read through a lag (a servo mismatch reads the axis rates
+    as late as the reference axis lags; an equal lag's shrink is read as late as the
+    lag) then pulls the start to meet its own timing - microns of it against the
+    tenths the geometry reads the start from (a mismatch moved it 12-13 ms, a lag found
+    at the grid's end 25 ms).  Each such parameter is profiled with the timing: for
+    every other value of the effect's grid (then around the best one) the timing is
+    polished with every column, the lowest residual wins and the finding's parameter is
+    set to it.  True when a parameter changed."""
+    changed = False
+    allg = Samples(np.arange(ctx.n), ctx.t_s)
+    yc = y if jump is None else y - jump.reading_um(ctx, al, t_m)
+    by = {e.name: e for e in lib}
+    for f in findings:
+        eff = by[f.effect]
+        if eff.timing_parameter is None:
+            continue
+        key, grid = eff.timing_parameter
+        rest = _model_columns(ctx, lib, expected, [g for g in findings if g is not f])[:, 2:]
+        rms: dict[float, float] = {}
+
+        def trial(c: float) -> float:
+            c = float(c)
+            if c not in rms:
+                cols = eff.columns(ctx, allg, {**f.nonlinear, key: c})[0]
+                X = generic_columns(ctx, expected, np.column_stack([*pose, rest, cols]))
+                rms[c] = refine(ctx, X, t_m, yc, al.offset_s, al.clock_ppm, iterations=4,
+                                max_samples=30_000, check=False).rms_um
+            return rms[c]
+
+        coarse = list(grid[::2]) + ([grid[-1]] if len(grid) % 2 == 0 else [])
+        k = grid.index(min(coarse, key=trial))
+        near = list(grid[max(k - 2, 0):k + 3])
+        k = grid.index(min(near, key=trial))
+        lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+        best = float(min(np.linspace(lo, hi, 7), key=trial))
+        log.debug("%s %s profiled with the timing: %.2f (%s)", f.effect, key, best,
+                  ", ".join(f"{c:g}: {v:.5f}" for c, v in sorted(rms.items())))
+        if best != f.nonlinear.get(key):
+            f.nonlinear[key] = best
+            changed = True
+    return changed
 
 
 def _partner_columns(ctx: Context, eff: Effect, expected: np.ndarray, t_m: np.ndarray,

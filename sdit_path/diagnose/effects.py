@@ -88,6 +88,10 @@ class Effect:
     def physical(self, coef: np.ndarray) -> bool:
         return True
 
+    #: a nonlinear parameter that trades with the recording's start (a lag: the alignment
+    #: puts it into the offset) and the grid it is profiled on with the timing, or None
+    timing_parameter: tuple[str, tuple[float, ...]] | None = None
+
     #: parameter -> largest plausible magnitude on a machining centre (about twice the
     #: "bad" end of the domain brief's table); a fit beyond it is not this effect
     limits: dict = {}
@@ -154,6 +158,7 @@ class ServoLag(Effect):
     name, title = "servo_lag", "equal servo lag of all axes: radius shrink ~ v^2"
     limits = {"tau_ms": 200.0}
     grid_ms = tuple(float(x) for x in np.round(np.geomspace(3.0, 150.0, 25), 3))
+    timing_parameter = ("tau_ms", grid_ms)
 
     def __init__(self):
         self._cache: dict = {}
@@ -165,13 +170,14 @@ class ServoLag(Effect):
         if key not in self._cache:
             if len(self._cache) >= 24:
                 self._cache.pop(next(iter(self._cache)))
-            self._cache[key] = lagged_radial_um(ctx, tau_ms * 1e-3).astype(np.float32)
+            # the context rides along so that its id cannot be reused while cached
+            self._cache[key] = (ctx, lagged_radial_um(ctx, tau_ms * 1e-3).astype(np.float32))
         # the lag also delays the machine along its path, and that delay cannot be told
         # from a later start: the alignment has put it into the offset, so program time
         # here is the commanded time of where the machine is - read the shrink tau later
         dt = (ctx.t_s[-1] - ctx.t_s[0]) / max(ctx.n - 1, 1)
         shifted = np.minimum(idx + int(round(tau_ms * 1e-3 / dt)), ctx.n - 1)
-        return self._cache[key][shifted].astype(float)
+        return self._cache[key][1][shifted].astype(float)
 
     def search(self, ctx, s, r):
         # a fixed grid (cached across steps): every third value, then the neighbours
@@ -210,17 +216,58 @@ def lagged_radial_um(ctx: Context, tau_s: float) -> np.ndarray:
 
 class ServoMismatch(Effect):
     name, title = "servo_mismatch", "different servo lags per axis: ~v, flips with direction"
-    limits = {"lag_*": 8.0}
+    limits = {"lag_*": 8.0, "common_lag_ms": 200.0}
+    grid_ms = (0.0, 3.0, 6.0, 10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0, 65.0, 80.0, 100.0)
+    timing_parameter = ("common_lag_ms", grid_ms)
+
+    def __init__(self):
+        self._cache: dict = {}
 
     def _axes(self, ctx):
         moving = [j for j in ctx.observable
                   if np.ptp(ctx.q[:, j]) > (1e-6 if j not in ctx.linear else 1e-3)]
         return moving[1:], (moving[0] if moving else 0)
 
+    def rates(self, ctx: Context, common_ms: float) -> np.ndarray:
+        """``(n, m)`` axis rates of the other axes as a lag difference reads them when
+        the reference axis lags ``common_ms``.
+
+        Axis j following its command through a first-order lag tau + d instead of tau
+        is off by L(tau + d) q - L(tau) q = -d * s L(tau) L(tau + d) q: the rate through
+        two lags, about 2 tau late.  The alignment has put the reference lag tau into the
+        offset, so in program time the rate is read about tau late; read without that
+        lag, the mismatch (microns where the geometry reads tenths) drags the start
+        12-13 ms late to meet it."""
+        key = (id(ctx), round(common_ms, 6))
+        if key not in self._cache:
+            if len(self._cache) >= 16:
+                self._cache.pop(next(iter(self._cache)))
+            others, _ = self._axes(ctx)
+            v = ctx.qdot[:, others].astype(float)
+            if common_ms > 0 and len(v):
+                from scipy.signal import lfilter
+
+                dt = (ctx.t_s[-1] - ctx.t_s[0]) / max(ctx.n - 1, 1)
+                k = 2.0 * common_ms * 1e-3 / dt
+                for _ in range(2):  # Tustin, from rest at the first rate
+                    v = lfilter([1.0, 1.0], [1.0 + k, 1.0 - k], v - v[0], axis=0) + v[0]
+                shift = int(round(common_ms * 1e-3 / dt))
+                v = np.concatenate([v[shift:], np.repeat(v[-1:], min(shift, len(v)), axis=0)])
+            self._cache[key] = (ctx, v)  # the context keeps its id unique while cached
+        return self._cache[key][1]
+
+    def search(self, ctx, s, r):
+        if not self._axes(ctx)[0]:
+            return None
+        return {"common_lag_ms": _grid_search(
+            self.grid_ms, lambda c: _proj_gain(self.columns(ctx, s, {"common_lag_ms": c})[0], r),
+            np.linspace)}
+
     def columns(self, ctx, s, nl):
         others, ref = self._axes(ctx)
+        v = self.rates(ctx, float(nl.get("common_lag_ms", 0.0)))
         # axis error -qdot * lag; um of reading per ms of lag
-        cols = [-(ctx.gain[s.idx, j] * ctx.qdot[s.idx, j]) for j in others]
+        cols = [-(ctx.gain[s.idx, j] * v[s.idx, i]) for i, j in enumerate(others)]
         labels = tuple(f"lag_{ctx.axis_names[j]}_minus_{ctx.axis_names[ref]}_ms" for j in others)
         return np.column_stack(cols) if cols else np.zeros((len(s.idx), 0)), labels
 
