@@ -285,9 +285,11 @@ def apply(case: Case | None, pd_: PlanData, rng: np.random.Generator
         amp = P["amplitude_um"] * 1e-3
         for i in range(len(t)):
             if crawl[i]:
-                lag += abs(v[i]) * dt  # stuck: the command runs on
-                if lag >= amp:
-                    lag = -0.3 * amp  # slip: jumps forward, past the command
+                # stuck, the command runs on until the lag reaches amp; the slip throws
+                # the axis forward, past the command (-0.3 amp), and it sticks again:
+                # a saw-tooth in the travel, exact however many teeth one sample holds
+                # (at 3 mm/s a 2 um tooth lasts 0.7 ms, shorter than a sample)
+                lag = (lag + 0.3 * amp + abs(v[i]) * dt) % (1.3 * amp) - 0.3 * amp
             else:
                 lag *= 0.9  # moving freely, the error settles
             out[i] = -np.sign(v[i]) * lag

@@ -366,6 +366,10 @@ def _profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: 
         best = float(min(np.linspace(lo, hi, 7), key=trial))
         log.debug("%s %s profiled with the timing: %.2f (%s)", f.effect, key, best,
                   ", ".join(f"{c:g}: {v:.5f}" for c, v in sorted(rms.items())))
+        if max(rms.values()) - rms[best] <= 1e-4 * rms[best]:
+            # a flat profile (the finding explains next to nothing at this timing)
+            # says nothing about the parameter: a tie must not move the start
+            continue
         if best != f.nonlinear.get(key):
             f.nonlinear[key] = best
             changed = True
