@@ -57,13 +57,30 @@ class Gram:
     layers: dict = field(default_factory=dict)
 
 
-#: Eigenvalues of the reduced normal matrix below this share of the largest count as
-#: zero: eliminating the set-up nuisances (Schur complement) cancels terms of the size
-#: of the largest, which leaves rounding noise of ~1e-12 of it in directions the
-#: geometry cannot see at all (seen: +1.5e-12 and -1.8e-12 on the default plan), so the
-#: cut sits well above that noise; a direction at 1e-9 (3e-5 of the best-seen
-#: sensitivity, after prior scaling) could not be determined anyway.
+#: Eigenvalues of the reduced normal matrix below this share of the scale of the normal
+#: equations *before* the set-up nuisances are eliminated count as zero.  Eliminating
+#: them (Schur complement) cancels terms of that size and leaves rounding noise of
+#: ~1e-12 of it in directions the geometry cannot see at all; measured against the
+#: largest eigenvalue *after* elimination instead (1.95e-2 against 1.9e6 on segment
+#: D3-2 alone), that noise passed as two more determined directions, and one segment
+#: showed rank 5 where the whole hemisphere shows 3.  A direction at 1e-9 of the scale
+#: (3e-5 of the best-seen sensitivity, after prior scaling) could not be determined anyway.
 STRUCTURAL = 1e-9
+
+
+def structural_scale(grams: list["Gram"]) -> float:
+    """The scale of the normal equations before elimination: the largest eigenvalue of
+    the parameter block, or of any experiment's nuisance block if that is larger."""
+    big = max(float(np.linalg.eigvalsh(sum(g.A for g in grams)).max()),
+              max(float(np.linalg.eigvalsh(g.C).max()) for g in grams))
+    return max(big, 1e-300)
+
+
+def structural_rank(grams: list["Gram"]) -> int:
+    """How many parameter directions these experiments see at all (set-up nuisances
+    eliminated); never more on part of the data than on the whole."""
+    S, _, _, _ = _schur(grams)
+    return int((np.linalg.eigvalsh(S) > structural_scale(grams) * STRUCTURAL).sum())
 
 
 def _nuisance_columns(u: np.ndarray) -> np.ndarray:
@@ -72,9 +89,10 @@ def _nuisance_columns(u: np.ndarray) -> np.ndarray:
 
 
 def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: ErrorModel,
-                    chunk: int = 200_000) -> Gram:
+                    chunk: int = 200_000, segments: set[str] | None = None) -> Gram:
     """Gram matrices of one experiment.  With ``trace`` the readings come from it
-    (matched to the trajectory by time); without, only the design (y = 0)."""
+    (matched to the trajectory by time); without, only the design (y = 0).  With
+    ``segments``, only the samples of those segments (design studies of a part)."""
     cfg = plan.config
     kin = Kinematics(cfg.machine)
     traj = plan.trajectory(program)
@@ -101,6 +119,8 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
                 f"{len(q) / rate:.1f} s; identification needs a recording of the whole program "
                 f"(at least half of it)")
         valid &= np.isfinite(y)
+    if segments is not None:
+        valid &= np.isin(segment, list(segments))
     rows = np.flatnonzero(valid)
     scale = np.array([prior_scale(p) for p in model.parameters])
     n_p = len(model.parameters)
@@ -151,29 +171,51 @@ def _schur(grams: list[Gram]) -> tuple[np.ndarray, np.ndarray, float, int]:
 
 @dataclass(frozen=True, slots=True)
 class Combination:
-    """``coefficients``: (parameter, coefficient) pairs, largest first, normalised so
-    that the largest is 1; ``estimate``/``std`` in the unit of the leading parameter."""
+    """The estimated quantity ``sum coefficient_j * theta_j``, every term kept.
+
+    ``coefficients``: (parameter, coefficient) pairs, normalised so that the term that
+    contributes most at typical magnitudes has coefficient 1 (``estimate`` and ``std``
+    are in its unit); ``typical``: each term's contribution at its parameter's typical
+    magnitude (|coefficient| x prior magnitude), in that unit, same order, largest
+    first.  The text may shorten the sum only by contribution, and says how much it
+    left out: the estimate and its uncertainty belong to the whole direction."""
 
     coefficients: tuple[tuple[str, float], ...]
+    typical: tuple[float, ...]
     estimate: float
     std: float
     unit: str
 
-    def describe(self) -> str:
-        terms = " ".join(f"{'+' if c >= 0 else '-'} {abs(c):.2f}*{n}" for n, c in self.coefficients)
+    def describe(self, max_terms: int = 6, share: float = 0.05) -> str:
+        """Terms in order of contribution; stop after ``max_terms`` or once what is
+        left contributes less than ``share`` of the leading term, and show the rest as
+        ``+ ...`` with their combined typical contribution."""
+        total = list(self.typical)
+        n = len(self.coefficients)
+        keep = 1
+        while keep < min(n, max_terms) and sum(total[keep:]) > share * total[0]:
+            keep += 1
+        terms = " ".join(f"{'+' if c >= 0 else '-'} {abs(c):.3g}*{name}"
+                         for name, c in self.coefficients[:keep])
+        if keep < n:
+            terms += (f" + ... ({n - keep} more term{'s' if n - keep > 1 else ''}, together "
+                      f"up to {sum(total[keep:]):.2g} {self.unit} at typical magnitudes)")
         return f"{terms.lstrip('+ ')} = {self.estimate:.3f} +- {self.std:.3f} {self.unit}"
 
 
 def _combination(model: ErrorModel, v: np.ndarray, est: float, std: float,
-                 scale: np.ndarray, cutoff: float = 0.1) -> Combination:
-    # x = theta / scale, so v.x = sum (v_j / scale_j) theta_j
-    coef = v / scale
-    k = int(np.argmax(np.abs(coef)))
-    norm = coef[k]
-    coef = coef / norm
-    order = np.argsort(-np.abs(coef))
-    pairs = tuple((model.parameters[j].name, float(coef[j])) for j in order if abs(coef[j]) >= cutoff)
-    return Combination(pairs, float(est / norm), float(abs(std / norm)), model.parameters[k].unit)
+                 scale: np.ndarray) -> Combination:
+    """``v . x`` with ``x = theta / scale``: ``sum (v_j / scale_j) theta_j``.  A term's
+    contribution at typical magnitude is ``|v_j|``; the largest leads."""
+    k = int(np.argmax(np.abs(v)))
+    norm = v[k] / scale[k]
+    coef = (v / scale) / norm
+    typical = np.abs(coef) * scale
+    # exact zeros of the direction (parameters it does not touch) are not terms
+    order = [j for j in np.argsort(-typical, kind="stable") if typical[j] > 1e-12 * typical[k]]
+    return Combination(tuple((model.parameters[j].name, float(coef[j])) for j in order),
+                       tuple(float(typical[j]) for j in order),
+                       float(est / norm), float(abs(std / norm)), model.parameters[k].unit)
 
 
 def _observability(S_block: np.ndarray, Vd: np.ndarray, count: int) -> dict:
@@ -207,8 +249,7 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
     lam, V = np.linalg.eigh(S)
     order = np.argsort(lam)[::-1]
     lam, V = lam[order], V[:, order]
-    lam_max = max(float(lam[0]), 1e-300)
-    structural = lam > lam_max * STRUCTURAL
+    structural = lam > structural_scale(grams) * STRUCTURAL
     rank = int(structural.sum())
     n_nuis = 4 * len(experiments)
     proj = V.T @ r
@@ -252,7 +293,8 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
         "samples": m, "experiments": [{"program": p} for _, p, _ in experiments],
         "noise_std_um": sigma, "residual_rms_um": math.sqrt(max(rss, 0.0) / max(m, 1)),
         "rank": rank, "determined": int(determined.sum()),
-        "combinations": [{"terms": [{"parameter": n, "coefficient": c} for n, c in cb.coefficients],
+        "combinations": [{"terms": [{"parameter": n, "coefficient": c, "typical_contribution": t}
+                                    for (n, c), t in zip(cb.coefficients, cb.typical)],
                           "estimate": cb.estimate, "std": cb.std, "unit": cb.unit,
                           "text": cb.describe()} for cb in combos],
         "identifiable_parameters": individually,
@@ -332,7 +374,7 @@ def _suggest(name: str, model: ErrorModel, experiments, grams: list[Gram], sigma
         g = _design_gram(plan, program, model, kin2, q, pivot, step=10)
         S, _, _, _ = _schur(grams + [g])
         lam, V = np.linalg.eigh(S)
-        keep = lam > max(lam.max(), 1e-300) * STRUCTURAL
+        keep = lam > structural_scale(grams + [g]) * STRUCTURAL
         std = np.where(keep, sigma / np.sqrt(np.maximum(lam, 1e-300)), np.inf)
         det = keep & (std < DETERMINED)
         Vd = V[:, det]
