@@ -31,7 +31,10 @@ def summary_text(report: dict, max_combinations: int = 20) -> str:
     lines.append(f"Not determined individually ({len(na)}): {', '.join(na[:30])}"
                  + (" ..." if len(na) > 30 else "") + ".")
     lines.append("")
-    lines.append("Set-up nuisances (estimated, not machine errors):")
+    lines.append("Set-up nuisances (estimated, not machine errors). The ball centring also "
+                 "absorbs the machine's constant translations: a constant offset between "
+                 "the tool ball and the pivot, as seen from the table, reads exactly as a "
+                 "centring error, so these are not the operator's centring alone:")
     for n in report["nuisances"]:
         c = n["centring_um"]
         lines.append(f"  {n['program']}: ball centring ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) um, "
