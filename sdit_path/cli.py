@@ -265,6 +265,7 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
     """Identify what the traces determine about the machine's geometric errors."""
     import json
 
+    from .diagnose.recording import align_recording, poor_fit
     from .errormodel.model import ModelOptions
     from .errors import ConfigError
     from .identify.identify import identify
@@ -278,9 +279,10 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
             raise ConfigError("--plan", f"give one plan, or one per trace ({len(traces)})")
         if programs and len(programs) != len(traces):
             raise ConfigError("--program", f"give one program per trace ({len(traces)})")
-        with _Steps(quiet, len(traces) + 2, "reading the plan") as step:
+        with _Steps(quiet, 2 * len(traces) + 2, "reading the plan") as step:
             plans = [load_plan(d) for d in plan_dirs]
             experiments = []
+            recordings = []
             for k, path in enumerate(traces):
                 step(f"reading {path}")
                 trace = read_trace(path)
@@ -291,11 +293,26 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
                 if prog not in plan_k.program_names:
                     raise ConfigError(path, f"program {prog[:40]!r} is not in the plan "
                                             f"({', '.join(plan_k.program_names)}); pass --program")
-                experiments.append((plan_k, prog, trace))
+                # a recording runs on its instrument's clock: matched and aligned to its
+                # program first, as the diagnosis does
+                step(f"aligning {path} to {prog}")
+                rec = align_recording(plan_k, prog, trace, str(path))
+                recordings.append(rec)
+                experiments.append((plan_k, prog, rec.trace))
             options = ModelOptions(linear_basis, linear_order, rotary_order, not no_squareness,
                                    not no_location)
             step("identifying")
             report = identify(experiments, options, prior=prior, ask=tuple(ask))
+            report["recordings"] = [{"file": str(p), **r.as_json()}
+                                    for p, r in zip(traces, recordings)]
+            noise = max(r.noise_um for r in recordings)
+            report["warnings"] = []
+            if poor_fit(report["noise_std_um"], noise):
+                report["warnings"].append(
+                    f"the identified model leaves {report['noise_std_um']:.2f} um RMS against "
+                    f"the recordings' own noise of at most {noise:.2f} um: a recording of another "
+                    f"program, feed or plan, a set-up that moved during the test, or an effect "
+                    f"beyond geometry (servo, backlash, drift: see diagnose)")
             if json_out:
                 write_file(json_out, json.dumps(report, indent=2) + "\n")
             step("done")

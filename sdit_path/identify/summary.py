@@ -11,7 +11,19 @@ def summary_text(report: dict, max_combinations: int = 20) -> str:
                  f"{report['noise_std_um']:.3f} um, residual RMS {report['residual_rms_um']:.3f} um.")
     lines.append(f"Model: {m['parameters']} parameters ({_options(m['options'])}), plus ball "
                  f"centring (3) and bar length (1) for every trace, which are always unknown.")
+    for r in report.get("recordings", []):
+        lines.append(f"  {r['file']}: aligned to {r['program']}, start {r['offset_s']:.4f} +- "
+                     f"{r['offset_std_s'] * 1e3:.1f} ms, clock {r['clock_ppm']:+.1f} +- "
+                     f"{r['clock_std_ppm']:.1f} ppm, residual {r['residual_rms_um']:.2f} um "
+                     f"(noise {r['noise_um']:.2f} um), {r['samples_in_program']} samples in the "
+                     f"program")
+    warnings = report.get("warnings", [])
+    for w in warnings:
+        lines.append(f"WARNING: {w}")
     lines.append("")
+    if warnings:
+        lines.append("The numbers below come from recordings with the warnings above: they are "
+                     "what the model makes of them, not established machine errors.")
     lines.append(f"What the data determine: {report['determined']} independent combination(s) "
                  f"(structural rank {report['rank']}; a combination counts as determined when its "
                  f"standard uncertainty is below half a typical error).")

@@ -1,0 +1,155 @@
+"""Matching a recording to its program and aligning it: the one way every command that
+reads a measured recording (``identify``, ``diagnose``) puts it on its program's time.
+
+A ballbar recording has its own clock: it starts seconds before the program, its rate
+is off by up to a few hundred ppm, and nothing in it says which program it recorded.
+Its samples are put on program time by the alignment the diagnosis uses (a global
+search over start and clock rate with a linear model of what any trace may hold:
+set-up, lag, reversal steps, pose-locked geometry).  A recording whose duration does
+not fit its program is refused; a fit (of the analysis that follows) whose residual is
+far above the recording's own noise (:func:`poor_fit`) is not a measurement of this
+program as planned, and its numbers are not printed as determined without saying so.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import RecordingError
+from ..planfiles import PlanFiles
+from ..sim.simulate import Trace
+from .align import Alignment, AlignmentError, align, check_span
+from .context import build_context
+from .diagnose import alignment_columns, expected_reading, noise_estimate
+
+#: a residual this many times the recording's own noise (and 0.5 um above it) is not
+#: this program's recording as planned, or holds what the alignment model cannot
+POOR_FIT = 3.0
+
+
+@dataclass(frozen=True, slots=True)
+class AlignedRecording:
+    """A recording on its program's time: ``trace`` holds the samples inside the
+    program (program time, readings as recorded), ``alignment`` how it was put there
+    (its residual is that of the alignment's model, which lacks most of the geometry:
+    whether the recording fits is judged on the fit of the analysis that follows)."""
+
+    program: str
+    alignment: Alignment
+    noise_um: float
+    trace: Trace
+    warning: str | None
+
+    def as_json(self) -> dict:
+        a = self.alignment
+        return {"program": self.program, "offset_s": a.offset_s, "offset_std_s": a.offset_std_s,
+                "clock_ppm": a.clock_ppm, "clock_std_ppm": a.clock_std_ppm,
+                "residual_rms_um": a.rms_um, "noise_um": self.noise_um,
+                "samples_in_program": int(np.isfinite(self.trace.delta_l_um).sum()),
+                "warning": self.warning}
+
+
+def poor_fit(residual_um: float, noise_um: float) -> bool:
+    """A model that leaves this much is not describing the recording: another program,
+    feed or plan, a set-up that moved, or an effect the model lacks."""
+    return residual_um > max(POOR_FIT * noise_um, noise_um + 0.5)
+
+
+#: share of the program's dwells at which an aligned recording must stand still
+STILL_SHARE = 0.75
+
+
+def stillness(t_s: np.ndarray, phase: np.ndarray, t_m: np.ndarray, y: np.ndarray,
+              al: Alignment, noise_um: float, margin_s: float = 0.3) -> tuple[int, int, float]:
+    """Does the recording stand still where the program dwells?  (dwells where it
+    does, dwells, share of equally long windows in the middle of the motion between
+    dwells where it stands still as well).
+
+    Nothing in a bar reading says that the machine moves, except that a real set-up
+    is never perfect: the few microns of centring residual every mounting leaves make
+    the reading wander while the ball moves over the sphere, and hold it still while
+    the program dwells at a node.  A recording of another program, feed or plan,
+    aligned as well as it goes, does not stand still at this program's dwells.  When
+    the reading is still during the motion as well (a perfect set-up on a perfect
+    machine), the test cannot tell (the share is returned for the caller to see)."""
+    dwell = (phase == "dwell").astype(np.int8)
+    edge = np.diff(np.r_[0, dwell, 0])
+    starts, ends = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1) - 1
+    spans = [(t_s[a] + margin_s, t_s[b] - margin_s) for a, b in zip(starts, ends)
+             if t_s[b] - t_s[a] > 2 * margin_s + 0.2]
+    if not spans:
+        return 0, 0, 0.0
+    width = float(np.median([b - a for a, b in spans]))
+    motion = [(0.5 * (b0 + a1) - width / 2, 0.5 * (b0 + a1) + width / 2)
+              for (_, b0), (a1, _) in zip(spans[:-1], spans[1:]) if a1 - b0 > width + 2 * margin_s]
+    ok = np.isfinite(y)
+    t_ok, y_ok = t_m[ok], y[ok]
+    limit = 1.5 * noise_um + 0.05
+
+    def still(a: float, b: float) -> bool | None:
+        lo, hi = np.searchsorted(t_ok, al.measured_time(np.array([a, b])))
+        if hi - lo < 20:
+            return None
+        return bool(np.std(y_ok[lo:hi]) <= limit)
+
+    d = [v for v in (still(a, b) for a, b in spans) if v is not None]
+    m = [v for v in (still(a, b) for a, b in motion) if v is not None]
+    return int(sum(d)), len(d), (float(np.mean(m)) if m else 0.0)
+
+
+def plausible_programs(plan: PlanFiles, trace: Trace) -> list[tuple[str, str]]:
+    """(program, why not) for every program of the plan; ``why not`` is empty when the
+    recording's duration admits it."""
+    span = float(trace.t_s[-1] - trace.t_s[0]) if len(trace.t_s) > 1 else 0.0
+    out = []
+    for prog in plan.program_names:
+        dur = float(plan.trajectory(prog).t_s[-1])
+        try:
+            check_span(span, dur)
+            out.append((prog, ""))
+        except AlignmentError:
+            out.append((prog, f"{prog} lasts {dur:.1f} s, the recording {span:.1f} s"))
+    return out
+
+
+def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str) -> AlignedRecording:
+    """Align ``trace`` (a recording of ``program``; ``label`` names it in messages) to
+    its program.  Refuses (RecordingError, one line) a recording whose duration does
+    not fit the program, naming the programs whose durations would."""
+    fits = plausible_programs(plan, trace)
+    why = dict(fits)
+    if why.get(program):
+        others = [p for p, w in fits if not w]
+        raise RecordingError(
+            f"{label}: not a recording of {program}: {why[program]}"
+            + (f"; its duration fits {', '.join(others)}" if others else
+               "; it fits no program of this plan (another plan, another feed?)"))
+    ctx = build_context(plan, program)
+    expected = expected_reading(plan, ctx, None)
+    t_m = np.asarray(trace.t_s, float)
+    y = np.asarray(trace.delta_l_um, float)
+    try:
+        al = align(ctx, expected, t_m, y, extra=alignment_columns(plan, ctx))
+    except AlignmentError as exc:
+        raise RecordingError(f"{label}: {exc}") from None
+    tau = al.program_time(t_m)
+    ok = np.isfinite(y)
+    noise = noise_estimate(y[ok], t_m[ok])
+    inside = (tau >= 0.0) & (tau <= float(ctx.t_s[-1]))
+    still, dwells, moving_still = stillness(ctx.t_s, plan.trajectory(program).phase, t_m, y,
+                                            al, noise)
+    if dwells and moving_still <= 0.5 and still < STILL_SHARE * dwells:
+        raise RecordingError(
+            f"{label}: does not match {program}: aligned as well as it goes (start "
+            f"{al.offset_s:.2f} s, clock {al.clock_ppm:+.0f} ppm), only {still} of the program's "
+            f"{dwells} dwells fall where the recording stands still; a recording of another "
+            f"program, feed or plan?")
+    header = {**trace.header, "program": program, "source": "aligned recording"}
+    aligned = Trace(tau[inside], y[inside], np.array([], dtype=object),
+                    np.array([], dtype=object), header)
+    if not math.isfinite(al.rms_um):
+        raise RecordingError(f"{label}: the alignment failed (no finite residual)")
+    return AlignedRecording(program, al, noise, aligned, None)
