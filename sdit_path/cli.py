@@ -56,6 +56,15 @@ class _Steps:
             self.live.__exit__(*exc)
         return False
 
+    def note(self, message: str) -> None:
+        """Say what is going on within a stage (the bar's text on a terminal; nothing in
+        a log, which keeps one line per stage)."""
+        if self.live is not None:
+            if self.total:
+                self.live.update(self.task, description=message)
+            else:
+                self.live.update(message)
+
     def __call__(self, message: str) -> None:
         self.done += 1
         if self.live is not None:
@@ -320,6 +329,78 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
         _fail(exc)
         return
     click.echo(summary_text(report))
+
+
+@main.command("analyse")
+@click.option("--plan", "plan_dir", required=True, type=click.Path(file_okay=False),
+              help="The directory written by sdit-path plan for the programs that were run.")
+@click.option("--measured", "measured", required=True, multiple=True,
+              help="A recording, FILE or PROGRAM=FILE (repeat, one per program run); without "
+                   "PROGRAM= its program is recognised from its duration and dwells.")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Folder for analysis.json, analysis.txt, aligned/ and pictures/.")
+@click.option("--force", is_flag=True, help="Replace an earlier analyse output in --out.")
+@click.option("--linear-order", default=1, show_default=True,
+              help="Legendre degree of linear-axis errors (0 = constants).")
+@click.option("--rotary-order", default=0, show_default=True, help="Fourier harmonics of rotary errors.")
+@click.option("--no-squareness", is_flag=True, help="Leave squareness out of the model.")
+@click.option("--no-location", is_flag=True, help="Leave rotary location errors out.")
+@click.option("--no-pictures", is_flag=True, help="Write no pictures.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress and no summary.")
+def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_order,
+                    no_squareness, no_location, no_pictures, quiet) -> None:
+    """Analyse recordings of a plan's programs: geometry, effects and what stays
+    unexplained, estimated together."""
+    import json
+    from pathlib import Path
+
+    from .analyse import aligned_csv, analyse, file_stem, summary_text
+    from .diagnose.context import build_context
+    from .diagnose.report import pictures
+    from .errormodel.model import ModelOptions
+    from .errors import ConfigError
+    from .output import check_output, write_tree
+    from .planfiles import load_plan
+    from .sim.traceio import read_trace
+
+    try:
+        plan = load_plan(plan_dir)
+        items = []
+        for m in measured:
+            prog, sep, path = m.partition("=")
+            if sep and prog in plan.program_names:
+                items.append((path, prog))
+            elif sep and prog and "/" not in prog and not Path(m).exists():
+                raise ConfigError("--measured", f"{m[:80]}: {prog[:40]!r} is not a program of the "
+                                                f"plan ({', '.join(plan.program_names)})")
+            else:
+                items.append((m, None))
+        protect = (Path(plan_dir) / "plan.json", *(p for p, _ in items))
+        check_output(out_dir, force, "analyse", protect)
+        n = len(items)
+        with _Steps(quiet, 3 * n + 2, "reading the recordings") as step:
+            recs = []
+            for path, prog in items:
+                step(f"reading {path}")
+                recs.append((path, prog, read_trace(path)))
+            options = ModelOptions("legendre", linear_order, rotary_order, not no_squareness,
+                                   not no_location)
+            report, done = analyse(plan, recs, options, step=step, note=step.note)
+            files = {"analysis.json": json.dumps(report, indent=2) + "\n",
+                     "analysis.txt": summary_text(report)}
+            for a in done:
+                stem = f"{a.program}_{file_stem(a.label)}"
+                files[f"aligned/{stem}.csv"] = aligned_csv(a)
+                if not no_pictures:
+                    for name, png in pictures(a.diagnosis, build_context(plan, a.program)).items():
+                        files[f"pictures/{stem}_{name}.png"] = png
+            step("writing")
+            write_tree(out_dir, files, force=force, command="analyse", protect=protect)
+    except SditError as exc:
+        _fail(exc)
+        return
+    if not quiet:
+        click.echo(files["analysis.txt"], nl=False)
 
 
 @main.command("perturb")

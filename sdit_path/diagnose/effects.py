@@ -92,6 +92,13 @@ class Effect:
     #: puts it into the offset) and the grid it is profiled on with the timing, or None
     timing_parameter: tuple[str, tuple[float, ...]] | None = None
 
+    #: how the effect's reading changes when the same path is run again: in the reverse
+    #: direction it is multiplied by ``reverse`` (-1: odd in the velocity, +1: even;
+    #: None: not that simple), at half the feed by 0.5 ** ``feed_power`` (None: not a
+    #: power of the feed).  Used to name the run that separates it from the geometry.
+    reverse: int | None = None
+    feed_power: float | None = None
+
     #: parameter -> largest plausible magnitude on a machining centre (about twice the
     #: "bad" end of the domain brief's table); a fit beyond it is not this effect
     limits: dict = {}
@@ -156,6 +163,7 @@ class ThermalDrift(Effect):
 
 class ServoLag(Effect):
     name, title = "servo_lag", "equal servo lag of all axes: radius shrink ~ v^2"
+    reverse, feed_power = 1, 2.0
     limits = {"tau_ms": 200.0}
     grid_ms = tuple(float(x) for x in np.round(np.geomspace(3.0, 150.0, 25), 3))
     timing_parameter = ("tau_ms", grid_ms)
@@ -216,6 +224,7 @@ def lagged_radial_um(ctx: Context, tau_s: float) -> np.ndarray:
 
 class ServoMismatch(Effect):
     name, title = "servo_mismatch", "different servo lags per axis: ~v, flips with direction"
+    reverse, feed_power = -1, 1.0
     limits = {"lag_*": 8.0, "common_lag_ms": 200.0}
     grid_ms = (0.0, 3.0, 6.0, 10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0, 65.0, 80.0, 100.0)
     timing_parameter = ("common_lag_ms", grid_ms)
@@ -274,6 +283,7 @@ class ServoMismatch(Effect):
 
 class Backlash(Effect):
     name, title = "backlash", "lost motion: a step at each reversal of an axis (play operator)"
+    reverse, feed_power = -1, 0.0
     limits = {"play_*": 80.0}
     grid_um = (0.5, 1.0, 2.0, 3.0, 4.5, 6.5, 9.0, 13.0, 18.0, 25.0, 35.0, 50.0)
 
@@ -317,6 +327,7 @@ class Backlash(Effect):
 
 class ReversalSpike(Effect):
     name, title = "reversal_spike", "decaying pulse after an axis reversal (friction)"
+    reverse, feed_power = -1, 0.0
     # the brief: tau 10-100 ms; the pulse rises over a few ms (friction breaking away
     # through the velocity loop), it does not jump
     limits = {"height_*": 50.0, "tau_ms": 100.0}
@@ -344,6 +355,7 @@ class ReversalSpike(Effect):
 
 class LateralPlay(Effect):
     name, title = "lateral_play", "a step across the reversing axis (guide play)"
+    reverse, feed_power = -1, 0.0
     limits = {"play_*": 15.0}
 
     def columns(self, ctx, s, nl):
@@ -731,6 +743,7 @@ GEOMETRIC = ("setup_offset", "bar_length", "squareness", "scale_mismatch", "cycl
 
 class ContourSmoothing(Effect):
     name, title = "contour_smoothing", "the control shortcuts the path (spatial low-pass)"
+    reverse, feed_power = 1, 2.0
     limits = {"shortcut_um": 40.0}
     grid_mm = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0)
 

@@ -90,7 +90,8 @@ def _nuisance_columns(u: np.ndarray) -> np.ndarray:
 
 def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: ErrorModel,
                     chunk: int = 200_000, segments: set[str] | None = None,
-                    at: tuple[np.ndarray, np.ndarray] | None = None) -> Gram:
+                    at: tuple[np.ndarray, np.ndarray] | None = None,
+                    extra: np.ndarray | None = None) -> Gram:
     """Gram matrices of one experiment.  With ``trace`` the readings come from it
     (matched to the trajectory by time); without, only the design (y = 0).  With
     ``segments``, only the samples of those segments (design studies of a part).
@@ -100,7 +101,12 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
     the first-order model there (a Gauss-Newton step with the Jacobian kept at the
     nominal poses): a 100 um error moves the bar by |e_perp|^2 / 2R beyond its
     first-order part, 0.05 um at R = 100 mm, and errors of Table 2's size bias the
-    first-order estimates by many of their standard uncertainties."""
+    first-order estimates by many of their standard uncertainties.
+
+    ``extra`` (trajectory samples x k): more nuisance columns of this experiment, such
+    as what the diagnosis found in the recording (a servo mismatch, a backlash, a
+    drift), estimated together with the geometry and eliminated with the set-up, so
+    that the geometry is not read from what these explain."""
     cfg = plan.config
     kin = Kinematics(cfg.machine)
     traj = plan.trajectory(program)
@@ -132,8 +138,9 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
     rows = np.flatnonzero(valid)
     scale = np.array([prior_scale(p) for p in model.parameters])
     n_p = len(model.parameters)
-    g = Gram(np.zeros((n_p, n_p)), np.zeros((n_p, 4)), np.zeros((4, 4)), np.zeros(n_p),
-             np.zeros(4), 0.0, 0)
+    n_n = 4 + (0 if extra is None else extra.shape[1])
+    g = Gram(np.zeros((n_p, n_p)), np.zeros((n_p, n_n)), np.zeros((n_n, n_n)), np.zeros(n_p),
+             np.zeros(n_n), 0.0, 0)
     for start in range(0, len(rows), chunk):
         sel = rows[start:start + chunk]
         J = sensitivities(kin, model, q[sel], pivot) * scale
@@ -146,7 +153,9 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
             theta, nuis = at
             ball = actual_ball(kin, model, theta, q[sel])
             exact = (np.linalg.norm(ball - (pivot + nuis[:3] * 1e-3), axis=1) - d) * 1e3 + nuis[3]
-            yy = yy - (exact - J @ (theta / scale) - N @ nuis)
+            yy = yy - (exact - J @ (theta / scale) - N @ nuis[:4])
+        if extra is not None:
+            N = np.column_stack([N, extra[sel]])
         g.A += J.T @ J
         g.B += J.T @ N
         g.C += N.T @ N
@@ -243,8 +252,15 @@ def _observability(S_block: np.ndarray, Vd: np.ndarray, count: int) -> dict:
 
 
 def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOptions,
-             prior: bool = False, ask: tuple[str, ...] = ()) -> dict:
-    """Identify from one or more traces; returns the report as a plain dict."""
+             prior: bool = False, ask: tuple[str, ...] = (),
+             extra: list[np.ndarray | None] | None = None,
+             groups: list[list["ExtraGroup"]] | None = None) -> dict:
+    """Identify from one or more traces; returns the report as a plain dict.
+
+    ``extra``: per experiment, more nuisance columns on its trajectory samples (see
+    :func:`experiment_gram`), or None; ``groups`` names them (per experiment, the
+    :class:`ExtraGroup` of each effect's columns) for the aliasing report."""
+    extra = list(extra) if extra is not None else [None] * len(experiments)
     plan0 = experiments[0][0]
     travel = {}
     for plan, _, _ in experiments:
@@ -257,14 +273,15 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
             raise ConfigError("--ask", f"{name} is not a parameter of this model; parameters: "
                                        f"{', '.join(model.names)}")
     scale = np.array([prior_scale(p) for p in model.parameters])
-    grams = [experiment_gram(plan, prog, tr, model) for plan, prog, tr in experiments]
+    grams = [experiment_gram(plan, prog, tr, model, extra=x)
+             for (plan, prog, tr), x in zip(experiments, extra)]
     S, r, yy, m = _schur(grams)
     lam, V = np.linalg.eigh(S)
     order = np.argsort(lam)[::-1]
     lam, V = lam[order], V[:, order]
     structural = lam > structural_scale(grams) * STRUCTURAL
     rank = int(structural.sum())
-    n_nuis = 4 * len(experiments)
+    n_nuis = sum(len(g.c) for g in grams)
     dof = max(m - rank - n_nuis, 1)
 
     def solve(r, yy, determined=None):
@@ -285,8 +302,8 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
     steps = []
     for _ in range(4):
         nuis = [np.linalg.pinv(g.C) @ (g.c - g.B.T @ x_hat) for g in grams]
-        corrected = [experiment_gram(plan, prog, tr, model, at=(x_hat * scale, n))
-                     for (plan, prog, tr), n in zip(experiments, nuis)]
+        corrected = [experiment_gram(plan, prog, tr, model, at=(x_hat * scale, n), extra=x)
+                     for (plan, prog, tr), n, x in zip(experiments, nuis, extra)]
         _, r_c, yy_c, _ = _schur(corrected)
         rss_c, sigma_c, std_c, _, est_c, x_c = solve(r_c, yy_c, determined)
         step = float(np.max(np.abs(est_c - est)[determined] / std_c[determined], initial=0.0))
@@ -313,7 +330,8 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
     for (plan, prog, _), g in zip(experiments, grams):
         n_hat = np.linalg.pinv(g.C) @ (g.c - g.B.T @ x_hat)
         nuisances.append({"program": prog, "centring_um": [float(v) for v in n_hat[:3]],
-                          "bar_length_um": float(n_hat[3])})
+                          "bar_length_um": float(n_hat[3]),
+                          "extra": [float(v) for v in n_hat[4:]]})
     # observability of the determined subspace
     seg_obs, layer_obs = {}, {}
     for g in grams:
@@ -338,12 +356,96 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
         "nuisances": nuisances,
         "observability": {"layers": layer_obs, "segments": seg_obs},
     }
+    if groups:
+        report["aliasing"] = _aliasing(grams, groups, V[:, determined], lam[determined], combos,
+                                       [p for _, p, _ in experiments])
     if prior:
         report["prior_estimates"] = _prior(model, S, r, sigma, scale)
     if ask:
         report["asked"] = [_suggest(name, model, experiments, grams, sigma, individually)
                            for name in ask]
     return report
+
+
+@dataclass(frozen=True, slots=True)
+class ExtraGroup:
+    """One effect's extra nuisance columns in an experiment (``start:stop`` of its extra
+    columns) and how they change in a repeat of the run: in the reverse direction they
+    are multiplied by ``reverse`` (-1 for an effect odd in the velocity, +1 for an even
+    one, None when it is not that simple); at half the feed by 0.5 ** ``feed_power``
+    (None: not a power of the feed)."""
+
+    name: str
+    start: int
+    stop: int
+    reverse: int | None
+    feed_power: float | None
+
+
+#: an effect that makes a determined combination this much less certain (standard
+#: uncertainty with it over without it) is reported as aliased with the geometry
+ALIASED = 1.5
+
+
+def _pair_schur(g: Gram, cols: np.ndarray, s: float) -> np.ndarray:
+    """The parameter block of ``g``'s run and a second run of it in which the columns
+    ``cols`` of the nuisance block (an effect of the machine: the same coefficients)
+    read ``s`` times as much; the rest of the nuisance block (set-up, other effects)
+    is new in the second run.  The same poses are assumed for both runs."""
+    n = len(g.c)
+    rest = np.setdiff1d(np.arange(n), cols)
+    Brr, Bg = g.B[:, rest], g.B[:, cols]
+    Crr, Crg, Cgg = g.C[np.ix_(rest, rest)], g.C[np.ix_(rest, cols)], g.C[np.ix_(cols, cols)]
+    z = np.zeros_like(Crr)
+    B = np.column_stack([Brr, Brr, Bg * (1.0 + s)])
+    C = np.block([[Crr, z, Crg], [z, Crr, s * Crg], [Crg.T, s * Crg.T, (1.0 + s * s) * Cgg]])
+    return 2.0 * g.A - B @ np.linalg.pinv(C) @ B.T
+
+
+def _aliasing(grams: list[Gram], groups: list[list[ExtraGroup]], Vd: np.ndarray,
+              lam_d: np.ndarray, combos: list[Combination], programs: list[str]) -> list:
+    """Where an effect estimated with the geometry takes its certainty: per effect, the
+    determined combinations whose standard uncertainty it multiplies by ``ALIASED`` or
+    more, and what a second run would bring (computed on the same poses, the effect's
+    coefficients shared by both runs): a plain repeat, the reverse direction, half the
+    feed.  Only the separation, not the doubling of the data, is what a repeat lacks."""
+    if Vd.shape[1] == 0:
+        return []
+    S_all = sum(g.A - g.B @ np.linalg.pinv(g.C) @ g.B.T for g in grams)
+
+    def stds(S):
+        Sd = Vd.T @ (0.5 * (S + S.T)) @ Vd
+        return np.sqrt(np.maximum(np.diag(np.linalg.pinv(Sd)), 0.0))
+
+    base = 1.0 / np.sqrt(lam_d)  # in units of sigma
+    out = []
+    for k, (g, gs) in enumerate(zip(grams, groups)):
+        S_k = g.A - g.B @ np.linalg.pinv(g.C) @ g.B.T
+        for grp in gs:
+            cols = np.arange(4 + grp.start, 4 + grp.stop)
+            keep = np.setdiff1d(np.arange(len(g.c)), cols)
+            S_wo = g.A - g.B[:, keep] @ np.linalg.pinv(g.C[np.ix_(keep, keep)]) @ g.B[:, keep].T
+            without = stds(S_all - S_k + S_wo)
+            factor = base / np.maximum(without, 1e-300)
+            hit = np.flatnonzero(factor >= ALIASED)
+            if not len(hit):
+                continue
+            runs = {"repeated as it was": 1.0}
+            if grp.reverse is not None:
+                runs["repeated in the reverse direction"] = float(grp.reverse)
+            if grp.feed_power:
+                runs["repeated at half the feed"] = 0.5 ** grp.feed_power
+            second = {text: stds(S_all - S_k + _pair_schur(g, cols, sc)) for text, sc in runs.items()}
+            for i in hit:
+                cb = combos[i]
+                out.append({
+                    "recording": k, "program": programs[k], "effect": grp.name,
+                    "combination": cb.describe(), "std": cb.std,
+                    "std_without_effect": cb.std / factor[i], "factor": float(factor[i]),
+                    "second_run": [{"run": text, "std": float(cb.std * v[i] / base[i])}
+                                   for text, v in second.items()],
+                    "unit": cb.unit})
+    return out
 
 
 def _prior(model: ErrorModel, S: np.ndarray, r: np.ndarray, sigma: float, scale: np.ndarray) -> list:
