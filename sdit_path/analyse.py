@@ -23,6 +23,7 @@ from .diagnose.context import build_context
 from .diagnose.diagnose import Diagnosis, diagnose, noise_estimate
 from .diagnose.effects import Samples, library
 from .diagnose.recording import AlignedRecording, align_recording, plausible_programs, poor_fit
+from .errormodel.errorset import ErrorSet
 from .errormodel.model import ModelOptions
 from .errors import ConfigError, RecordingError
 from .identify.identify import ExtraGroup, identify
@@ -167,21 +168,42 @@ def effect_columns(plan: PlanFiles, d: Diagnosis, options: ModelOptions, ctx
         if f.effect in skip or f.effect not in lib:
             continue
         eff = lib[f.effect]
-        C, _ = eff.columns(ctx, everywhere, f.nonlinear)
-        C = np.asarray(C, float).reshape(ctx.n, -1)
-        if C.shape[1] == 0 or not np.isfinite(C).all():
+        C = _columns(eff, ctx, everywhere, f.nonlinear)
+        if C is None:
             continue
+        # the nonlinear parameters (a lag, a time constant) are estimated too: their
+        # first-order change is a nuisance as well, so that their uncertainty reaches
+        # the geometry's instead of biasing it
+        for key, value in f.nonlinear.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                continue
+            h = 0.01 * abs(value) if value else 0.01
+            up = _columns(eff, ctx, everywhere, {**f.nonlinear, key: value + h})
+            down = _columns(eff, ctx, everywhere, {**f.nonlinear, key: value - h})
+            if up is not None and down is not None and up.shape == C.shape:
+                D = (up - down) / (2 * h)
+                if np.abs(D).max() > 1e-9 * max(np.abs(C).max(), 1e-300):
+                    C = np.column_stack([C, D])
         cols.append(C)
         groups.append(ExtraGroup(f.effect, at, at + C.shape[1], eff.reverse, eff.feed_power))
         at += C.shape[1]
     return (np.column_stack(cols) if cols else None), groups
 
 
+def _columns(eff, ctx, samples: Samples, nl: dict) -> np.ndarray | None:
+    try:
+        C, _ = eff.columns(ctx, samples, nl)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    C = np.asarray(C, float).reshape(ctx.n, -1)
+    return C if C.shape[1] and np.isfinite(C).all() else None
+
+
 def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
             options: ModelOptions, step=lambda msg: None, note=lambda msg: None) -> tuple[dict, list]:
     """``recordings``: (label, program or None, recording).  Returns the report and the
     analysed recordings (for pictures and aligned traces)."""
-    done: list[Analysed] = []
+    first: list[tuple[str, str, AlignedRecording, Trace]] = []
     used: dict[str, str] = {}
     for label, named, trace in recordings:
         step(f"matching and aligning {label}")
@@ -190,9 +212,19 @@ def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
             raise RecordingError(f"{label}: a second recording of {rec.program} (the first: "
                                  f"{used[rec.program]}); give each program once")
         used[rec.program] = label
+        first.append((label, how, rec, trace))
+    # the geometry first from the recordings as aligned, so that the diagnosis looks at
+    # what the geometry leaves (the effect library holds only a few kinds of geometry);
+    # then the geometry again with what the diagnosis found
+    step("a first estimate of the geometry")
+    geo0 = identify([(plan, rec.program, rec.trace) for _, _, rec, _ in first], options)
+    model0 = ErrorSet("geometry identified from the recordings", options,
+                      tuple(geo0["model_state"].items()))
+    done: list[Analysed] = []
+    for label, how, rec, trace in first:
         step(f"diagnosing {label} ({rec.program})")
         ctx = build_context(plan, rec.program)
-        d = diagnose(plan, rec.program, trace, None, progress=note, ctx=ctx,
+        d = diagnose(plan, rec.program, trace, model0, progress=note, ctx=ctx,
                      alignment=rec.alignment)
         al = d.alignment
         t_m = np.asarray(trace.t_s, float)

@@ -378,7 +378,7 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
         protect = (Path(plan_dir) / "plan.json", *(p for p, _ in items))
         check_output(out_dir, force, "analyse", protect)
         n = len(items)
-        with _Steps(quiet, 3 * n + 2, "reading the recordings") as step:
+        with _Steps(quiet, 3 * n + 3, "reading the recordings") as step:
             recs = []
             for path, prog in items:
                 step(f"reading {path}")

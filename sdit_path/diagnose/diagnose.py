@@ -169,7 +169,7 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
              alignment: Alignment | None = None) -> Diagnosis:
     """``ctx``: the program's context if the caller has built it already; ``alignment``:
     the recording's first alignment if the caller has made it already (as
-    :func:`..recording.align_recording` does, with no geometric model)."""
+    :func:`..recording.align_recording` does); it is refined with what is found."""
     def step(msg):
         log.info(msg)
         if progress:
@@ -181,8 +181,7 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     t_m, y = np.asarray(trace.t_s, float), np.asarray(trace.delta_l_um, float)
     step("alignment")
     base = alignment_columns(plan, ctx)
-    al = alignment if alignment is not None and model is None else align(ctx, expected, t_m, y,
-                                                                           extra=base)
+    al = alignment if alignment is not None else align(ctx, expected, t_m, y, extra=base)
     lib = library(plan.config.machine, plan.tested_travel())
     first = _explain(ctx, lib, expected, t_m, y, al, options, step, finalize=False)
     # realign with the explained model (the first alignment already searched with what

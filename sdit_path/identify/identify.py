@@ -352,6 +352,9 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
                           "estimate": cb.estimate, "std": cb.std, "unit": cb.unit,
                           "text": cb.describe()} for cb in combos],
         "identifiable_parameters": individually,
+        # the fitted model (minimum norm: what the data do not determine held at zero),
+        # to simulate the readings it predicts; its values are not machine errors one by one
+        "model_state": {p.name: float(v) for p, v in zip(model.parameters, x_hat * scale)},
         "not_individually_identifiable": aliased,
         "nuisances": nuisances,
         "observability": {"layers": layer_obs, "segments": seg_obs},

@@ -1,0 +1,112 @@
+"""``sdit-path analyse`` on recordings made by ``perturb`` with hidden geometry (linear
+order 1 + squareness), a hidden servo mismatch, unknown start and clock: the programs
+are recognised, the geometry is recovered within its stated uncertainty, the effect is
+named, and a recording of another feed is refused with one line and nothing written."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import DATA
+
+
+def run(*args, timeout=1200):
+    return subprocess.run([sys.executable, "-m", "sdit_path", *args], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def geometry_file(path, seed):
+    """Random geometry of a few um and tens of urad (linear order 1 + squareness)."""
+    rng = np.random.default_rng(seed)
+    values = {}
+    for axis in "XYZ":
+        for comp in "XYZ":
+            values[f"E{comp}{axis}"] = rng.normal(0, 3.0)
+            values[f"E{comp}{axis}.P1"] = rng.normal(0, 3.0)
+        for comp in "ABC":
+            values[f"E{comp}{axis}"] = rng.normal(0, 20.0)
+    for sq in ("EC0Y", "EB0Z", "EA0Z"):
+        values[sq] = rng.normal(0, 30.0)
+    body = "\n".join(f'"{k}" = {v:.4f}' for k, v in values.items())
+    path.write_text(f'name = "hidden {seed}"\n\n[model]\nlinear_order = 1\nsquareness = true\n'
+                    f"\n[values]\n{body}\n")
+    return values
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    root = tmp_path_factory.mktemp("analyse")
+    plan = root / "plan"
+    r = run("plan", str(DATA / "golden_small.toml"), "--out", str(plan), "-q")
+    assert r.returncode == 0, r.stderr
+    truth = geometry_file(root / "hidden.toml", seed=7)
+    files = []
+    for k, (prog, lead, ppm) in enumerate((("GOLD_A", 6.0, 90.0), ("GOLD_B", 11.0, -140.0))):
+        rec = root / f"rec{k}.csv"
+        r = run("perturb", "--plan", str(plan), "--program", prog, "--model",
+                str(root / "hidden.toml"), "--effect", "servo_mismatch:axis=Y,extra_lag_ms=2.0",
+                "--lead-s", str(lead), "--clock-ppm", str(ppm), "--noise-um", "0.2",
+                "--out", str(rec), "--truth", str(root / f"truth{k}.json"), "-q")
+        assert r.returncode == 0, r.stderr
+        files.append(rec)
+    out = root / "out"
+    r = run("analyse", "--plan", str(plan), "--measured", str(files[1]), "--measured",
+            str(files[0]), "--out", str(out), "--no-pictures")
+    return {"root": root, "plan": plan, "files": files, "truth": truth, "out": out, "run": r}
+
+
+def test_recognised_aligned_and_geometry_within_its_uncertainty(recorded):
+    r = recorded["run"]
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((recorded["out"] / "analysis.json").read_text())
+    progs = {x["file"]: x["program"] for x in rep["recordings"]}
+    assert progs == {str(recorded["files"][0]): "GOLD_A", str(recorded["files"][1]): "GOLD_B"}
+    for x, k in ((rep["recordings"][0], 1), (rep["recordings"][1], 0)):
+        t = json.loads((recorded["root"] / f"truth{k}.json").read_text())["recording"]
+        al = x["diagnosis"]["alignment"]
+        assert abs(al["clock_ppm"] - t["clock_ppm"]) <= max(5.0, 4 * al["clock_std_ppm"]), (al, t)
+        # the lag of the common servo is part of the offset: within 50 ms of the start
+        assert abs(al["offset_s"] - t["offset_s"]) < 0.05, (al, t)
+        assert x["diagnosis"]["findings"], x
+        named = [f["effect"] for f in x["diagnosis"]["findings"] if f["effect"] not in
+                 ("setup_offset", "bar_length", "squareness", "scale_mismatch")]
+        assert named and named[0] == "servo_mismatch", named
+    geo = rep["geometry"]
+    assert geo["combinations"]
+    truth = recorded["truth"]
+    misses = []
+    for c in geo["combinations"]:
+        value = sum(term["coefficient"] * truth.get(term["parameter"], 0.0) for term in c["terms"])
+        if abs(c["estimate"] - value) > 3 * c["std"] + 1e-3:
+            misses.append((c["text"], value))
+    # 3 standard uncertainties: at most one miss in twenty
+    assert len(misses) <= len(geo["combinations"]) // 20, misses
+    text = (recorded["out"] / "analysis.txt").read_text()
+    assert "GEOMETRY" in text and "servo_mismatch" in text
+    aligned = sorted(p.name for p in (recorded["out"] / "aligned").iterdir())
+    assert aligned == ["GOLD_A_rec0.csv", "GOLD_B_rec1.csv"]
+
+
+def test_a_recording_of_another_feed_is_refused_and_nothing_is_written(recorded, tmp_path):
+    text = (DATA / "golden_small.toml").read_text()
+    slow = tmp_path / "slow.toml"
+    slow.write_text(text.replace("feed_mm_per_min = 1000.0", "feed_mm_per_min = 400.0"))
+    r = run("plan", str(slow), "--out", str(tmp_path / "slow"), "-q")
+    assert r.returncode == 0, r.stderr
+    rec = tmp_path / "slow.csv"
+    r = run("perturb", "--plan", str(tmp_path / "slow"), "--program", "GOLD_A", "--lead-s", "4",
+            "--noise-um", "0.2", "--out", str(rec), "-q")
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "out"
+    for given in (str(rec), f"GOLD_A={rec}"):
+        r = run("analyse", "--plan", str(recorded["plan"]), "--measured", given, "--out", str(out))
+        assert r.returncode != 0
+        lines = r.stderr.strip().splitlines()
+        assert len(lines[-1]) < 700 and "Traceback" not in r.stderr, r.stderr
+        assert str(rec) in lines[-1] and ("GOLD_A" in lines[-1] or "no program" in lines[-1]), lines
+        assert not out.exists()
