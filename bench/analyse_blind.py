@@ -1,0 +1,168 @@
+"""Seeded blind check of ``sdit-path analyse`` (issue 16): recordings of every program of
+a plan made by ``perturb`` with hidden random geometry (linear order 1 + squareness: a
+few um and tens of urad), one hidden effect of the machine (the same in every program,
+or none), a set-up offset, and an unknown start, clock and noise per recording.  The
+analysis sees the plan and the recordings' files, nothing else; then it is scored:
+
+- every determined combination against the truth (within 3 standard uncertainties);
+- the hidden effect named first in each recording (set-up and geometry are not effects);
+- a clean machine with no effect named;
+- the start (within 50 ms: a lag of the servo is part of it) and the clock (within
+  max(5 ppm, 4 of its stated uncertainties)).
+
+    python bench/analyse_blind.py [--plan-config tests/data/golden_small.toml] [--cases 10]
+                                  [--seed 1] [--json OUT] [--work DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+
+from sdit_path.diagnose.context import build_context  # noqa: E402
+from sdit_path.planfiles import load_plan  # noqa: E402
+from sdit_path.sim.perturb import draw_effect  # noqa: E402
+
+EFFECTS = ("servo_lag", "servo_mismatch", "backlash", "reversal_spike", "thermal_drift",
+           "lateral_play", "contour_smoothing", None)
+NOT_EFFECTS = ("setup_offset", "bar_length", "squareness", "scale_mismatch",
+               "geometry_beyond_library")
+
+
+def cli(*args):
+    return subprocess.run([sys.executable, "-m", "sdit_path", *args], capture_output=True,
+                          text=True)
+
+
+def geometry(rng) -> dict:
+    values = {}
+    for axis in "XYZ":
+        for comp in "XYZ":
+            values[f"E{comp}{axis}"] = rng.normal(0, 3.0)
+            values[f"E{comp}{axis}.P1"] = rng.normal(0, 3.0)
+        for comp in "ABC":
+            values[f"E{comp}{axis}"] = rng.normal(0, 20.0)
+    for sq in ("EC0Y", "EB0Z", "EA0Z"):
+        values[sq] = rng.normal(0, 30.0)
+    return values
+
+
+def effect_text(h) -> str:
+    return h.name + ":" + ",".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}"
+                                   for k, v in h.params.items())
+
+
+def run_case(k: int, seed: int, plan_dir: Path, work: Path) -> dict:
+    rng = np.random.default_rng([seed, k, 16])
+    plan = load_plan(plan_dir)
+    d = work / f"case{k}"
+    d.mkdir(parents=True, exist_ok=True)
+    truth = geometry(rng)
+    (d / "hidden.toml").write_text(
+        'name = "hidden"\n\n[model]\nlinear_order = 1\nsquareness = true\n\n[values]\n'
+        + "\n".join(f'"{n}" = {v:.5f}' for n, v in truth.items()) + "\n")
+    name = EFFECTS[k % len(EFFECTS)]
+    ctx = build_context(plan, plan.program_names[0])
+    hidden = [draw_effect(name, rng, ctx)] if name else []
+    setup = draw_effect("setup_offset", rng, ctx)
+    files, recs = [], []
+    for prog in plan.program_names:
+        lead, ppm, noise = rng.uniform(1, 20), rng.uniform(-150, 150), rng.uniform(0.1, 0.3)
+        f = d / f"{prog.lower()}.csv"
+        args = ["perturb", "--plan", str(plan_dir), "--program", prog, "--model",
+                str(d / "hidden.toml"), "--effect", effect_text(setup),
+                "--lead-s", f"{lead:.3f}", "--clock-ppm", f"{ppm:.2f}", "--noise-um",
+                f"{noise:.3f}", "--out", str(f), "--truth", str(d / f"{prog}.truth.json"), "-q"]
+        for h in hidden:
+            args += ["--effect", effect_text(h)]
+        r = cli(*args)
+        if r.returncode:
+            return {"case": k, "error": r.stderr.strip()[-300:]}
+        files.append(f)
+        recs.append((prog, json.loads((d / f"{prog}.truth.json").read_text())["recording"]))
+    t0 = time.time()
+    args = ["analyse", "--plan", str(plan_dir), "--out", str(d / "out"), "--force",
+            "--no-pictures", "-q"]
+    for f in files:
+        args += ["--measured", str(f)]
+    r = cli(*args)
+    seconds = time.time() - t0
+    if r.returncode:
+        return {"case": k, "effect": name, "error": r.stderr.strip()[-300:]}
+    rep = json.loads((d / "out" / "analysis.json").read_text())
+    combos = rep["geometry"]["combinations"]
+    z = [abs(c["estimate"] - sum(t["coefficient"] * truth.get(t["parameter"], 0.0)
+                                 for t in c["terms"])) / c["std"] for c in combos]
+    out = {"case": k, "effect": name, "seconds": seconds, "combinations": len(combos),
+           "within_3": int(sum(v <= 3.0 for v in z)), "z_max": max(z, default=0.0),
+           "recordings": []}
+    truth_rec = dict(recs)
+    for x in rep["recordings"]:
+        first = next((f["effect"] for f in x["diagnosis"]["findings"]
+                      if f["effect"] not in NOT_EFFECTS), None)
+        al = x["diagnosis"]["alignment"]
+        t = truth_rec[x["program"]]
+        out["recordings"].append({
+            "program": x["program"], "named_first": first,
+            "right": first == name,
+            "offset_ms": (al["offset_s"] - t["offset_s"]) * 1e3,
+            "clock_err_ppm": al["clock_ppm"] - t["clock_ppm"],
+            "clock_ok": abs(al["clock_ppm"] - t["clock_ppm"]) <= max(5.0, 4 * (al["clock_std_ppm"] or 0)),
+            "offset_ok": abs(al["offset_s"] - t["offset_s"]) <= 0.05})
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--plan-config", default=str(HERE.parent / "tests/data/golden_small.toml"))
+    ap.add_argument("--cases", type=int, default=8)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--json")
+    ap.add_argument("--work")
+    a = ap.parse_args()
+    work = Path(a.work or tempfile.mkdtemp(prefix="analyse-blind-"))
+    plan_dir = work / "plan"
+    if not plan_dir.is_dir():
+        r = cli("plan", a.plan_config, "--out", str(plan_dir), "-q")
+        if r.returncode:
+            sys.exit(r.stderr)
+    results = []
+    for k in range(a.cases):
+        res = run_case(k, a.seed, plan_dir, work)
+        results.append(res)
+        if "error" in res:
+            print(f"case {k:3d} {res.get('effect')}: ERROR {res['error']}", flush=True)
+            continue
+        recs = " ".join(f"{x['program']}:{x['named_first'] or '-'}"
+                        f"{'' if x['right'] else '(x)'} off {x['offset_ms']:+.1f} ms "
+                        f"clk {x['clock_err_ppm']:+.1f}" for x in res["recordings"])
+        print(f"case {k:3d} {str(res['effect']):18s} combos {res['within_3']}/{res['combinations']}"
+              f" (max z {res['z_max']:.1f}) {recs} {res['seconds']:.0f} s", flush=True)
+    ok = [r for r in results if "error" not in r]
+    combos = sum(r["combinations"] for r in ok)
+    within = sum(r["within_3"] for r in ok)
+    recs = [x for r in ok for x in r["recordings"]]
+    eff = [x for r in ok for x in r["recordings"] if r["effect"]]
+    clean = [x for r in ok for x in r["recordings"] if not r["effect"]]
+    print(f"\ncases {len(ok)} of {len(results)} analysed; determined combinations within 3 std: "
+          f"{within}/{combos} ({within / max(combos, 1):.1%})")
+    print(f"effect named first: {sum(x['right'] for x in eff)}/{len(eff)} recordings; clean "
+          f"recordings with no effect named: {sum(x['right'] for x in clean)}/{len(clean)}")
+    print(f"alignment: start within 50 ms {sum(x['offset_ok'] for x in recs)}/{len(recs)}, clock "
+          f"within max(5 ppm, 4 std) {sum(x['clock_ok'] for x in recs)}/{len(recs)}")
+    if a.json:
+        Path(a.json).write_text(json.dumps(results, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
