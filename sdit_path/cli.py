@@ -498,6 +498,7 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
     from .diagnose.align import AlignmentError
     from .diagnose.context import build_context
     from .diagnose.diagnose import diagnose
+    from .diagnose.recording import align_recording
     from .diagnose.report import pictures, summary_text, to_json
     from .errormodel.errorset import load_error_set
     from .errors import ConfigError
@@ -514,8 +515,13 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
         trace = read_trace(measured)
         with _Steps(quiet, None, "diagnosing") as step:
             ctx = build_context(plan, program)
+            # matched and aligned as every command that reads a recording does it
+            step("matching the recording to its program")
+            rec = align_recording(plan, program, trace, str(measured))
             try:
-                result = diagnose(plan, program, trace, model, progress=step, ctx=ctx)
+                # with a geometric model the search is made again with what it predicts
+                result = diagnose(plan, program, trace, model, progress=step, ctx=ctx,
+                                  alignment=rec.alignment if model is None else None)
             except AlignmentError as exc:
                 raise AlignmentError(f"{measured}: {exc}") from None
         report = to_json(result)

@@ -111,7 +111,8 @@ def plausible_programs(plan: PlanFiles, trace: Trace) -> list[tuple[str, str]]:
             check_span(span, dur)
             out.append((prog, ""))
         except AlignmentError:
-            out.append((prog, f"{prog} lasts {dur:.1f} s, the recording {span:.1f} s"))
+            how = "shorter than the program" if span < dur else "far longer than the program"
+            out.append((prog, f"{prog} lasts {dur:.1f} s, the recording {span:.1f} s ({how})"))
     return out
 
 
