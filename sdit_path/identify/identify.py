@@ -91,7 +91,8 @@ def _nuisance_columns(u: np.ndarray) -> np.ndarray:
 def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: ErrorModel,
                     chunk: int = 200_000, segments: set[str] | None = None,
                     at: tuple[np.ndarray, np.ndarray] | None = None,
-                    extra: np.ndarray | None = None) -> Gram:
+                    extra: np.ndarray | None = None, cache: dict | None = None,
+                    observe: bool = True) -> Gram:
     """Gram matrices of one experiment.  With ``trace`` the readings come from it
     (matched to the trajectory by time); without, only the design (y = 0).  With
     ``segments``, only the samples of those segments (design studies of a part).
@@ -106,7 +107,9 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
     ``extra`` (trajectory samples x k): more nuisance columns of this experiment, such
     as what the diagnosis found in the recording (a servo mismatch, a backlash, a
     drift), estimated together with the geometry and eliminated with the set-up, so
-    that the geometry is not read from what these explain."""
+    that the geometry is not read from what these explain.  ``cache`` (a dict kept by
+    the caller for this experiment) keeps the sensitivities between calls on the same
+    trace; ``observe=False`` skips the per-segment and per-layer blocks."""
     cfg = plan.config
     kin = Kinematics(cfg.machine)
     traj = plan.trajectory(program)
@@ -143,10 +146,16 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
              np.zeros(n_n), 0.0, 0)
     for start in range(0, len(rows), chunk):
         sel = rows[start:start + chunk]
-        J = sensitivities(kin, model, q[sel], pivot) * scale
-        p_nom = kin.forward(q[sel])
-        d = np.linalg.norm(p_nom - pivot, axis=1)
-        u = (p_nom - pivot) / d[:, None]
+        key = (start, len(sel), int(sel[0]), int(sel[-1])) if len(sel) else None
+        if cache is not None and key in cache:
+            J, d, u = cache[key]  # the nominal poses do not move between Gauss-Newton steps
+        else:
+            J = sensitivities(kin, model, q[sel], pivot) * scale
+            p_nom = kin.forward(q[sel])
+            d = np.linalg.norm(p_nom - pivot, axis=1)
+            u = (p_nom - pivot) / d[:, None]
+            if cache is not None:
+                cache[key] = (J, d, u)
         yy = y[sel] - (d - cfg.ballbar.bar_length_mm) * 1e3 if trace is not None else y[sel]
         N = _nuisance_columns(u)
         if at is not None and trace is not None:
@@ -163,13 +172,19 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
         g.c += N.T @ yy
         g.yy += float(yy @ yy)
         g.m += len(sel)
-        for sid in np.unique(segment[sel]):
-            if phase[sel][segment[sel] == sid][0] == "dwell":
+        if not observe:
+            continue
+        names, inverse = np.unique(segment[sel], return_inverse=True)
+        order = np.argsort(inverse, kind="stable")
+        bounds = np.searchsorted(inverse[order], np.arange(len(names) + 1))
+        ph = phase[sel]
+        for i, sid in enumerate(names):
+            rs = order[bounds[i]:bounds[i + 1]]
+            if ph[rs[0]] == "dwell":
                 continue
-            rs = segment[sel] == sid
             Js = J[rs]
             a, n = g.segments.get(sid, (0.0, 0))
-            g.segments[sid] = (a + Js.T @ Js, n + int(rs.sum()))
+            g.segments[sid] = (a + Js.T @ Js, n + len(rs))
         lay = program
         a, n = g.layers.get(lay, (0.0, 0))
         g.layers[lay] = (a + J.T @ J, n + len(sel))
@@ -273,8 +288,9 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
             raise ConfigError("--ask", f"{name} is not a parameter of this model; parameters: "
                                        f"{', '.join(model.names)}")
     scale = np.array([prior_scale(p) for p in model.parameters])
-    grams = [experiment_gram(plan, prog, tr, model, extra=x)
-             for (plan, prog, tr), x in zip(experiments, extra)]
+    caches = [{} for _ in experiments]
+    grams = [experiment_gram(plan, prog, tr, model, extra=x, cache=c)
+             for (plan, prog, tr), x, c in zip(experiments, extra, caches)]
     S, r, yy, m = _schur(grams)
     lam, V = np.linalg.eigh(S)
     order = np.argsort(lam)[::-1]
@@ -302,8 +318,11 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
     steps = []
     for _ in range(4):
         nuis = [np.linalg.pinv(g.C) @ (g.c - g.B.T @ x_hat) for g in grams]
-        corrected = [experiment_gram(plan, prog, tr, model, at=(x_hat * scale, n), extra=x)
-                     for (plan, prog, tr), n, x in zip(experiments, nuis, extra)]
+        corrected = [experiment_gram(plan, prog, tr, model, at=(x_hat * scale, n), extra=x,
+                                     cache=c, observe=False)
+                     for (plan, prog, tr), n, x, c in zip(experiments, nuis, extra, caches)]
+        for g_new, g_old in zip(corrected, grams):
+            g_new.segments, g_new.layers = g_old.segments, g_old.layers
         _, r_c, yy_c, _ = _schur(corrected)
         rss_c, sigma_c, std_c, _, est_c, x_c = solve(r_c, yy_c, determined)
         step = float(np.max(np.abs(est_c - est)[determined] / std_c[determined], initial=0.0))

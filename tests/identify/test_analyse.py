@@ -110,3 +110,18 @@ def test_a_recording_of_another_feed_is_refused_and_nothing_is_written(recorded,
         assert len(lines[-1]) < 700 and "Traceback" not in r.stderr, r.stderr
         assert str(rec) in lines[-1] and ("GOLD_A" in lines[-1] or "no program" in lines[-1]), lines
         assert not out.exists()
+
+
+def test_bad_requests_get_one_line_and_touch_nothing(recorded, tmp_path):
+    plan, rec = str(recorded["plan"]), str(recorded["files"][0])
+    before = sorted(p.name for p in recorded["plan"].iterdir())
+    cases = ((["--measured", f"FOO={rec}", "--out", str(tmp_path / "o")], "'FOO' is not a program"),
+             (["--measured", rec, "--out", plan], "which this run reads"),
+             (["--measured", rec, "--measured", f"GOLD_A={rec}", "--out", str(tmp_path / "o")],
+              "a second recording of GOLD_A"))
+    for args, expected in cases:
+        r = run("analyse", "--plan", plan, *args, "-q")
+        assert r.returncode != 0 and "Traceback" not in r.stderr, r.stderr
+        assert expected in r.stderr.strip().splitlines()[-1], r.stderr
+    assert not (tmp_path / "o").exists()
+    assert sorted(p.name for p in recorded["plan"].iterdir()) == before
