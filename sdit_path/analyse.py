@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .diagnose.context import build_context
-from .diagnose.diagnose import Diagnosis, diagnose, noise_estimate
+from .diagnose.diagnose import Diagnosis, diagnose, dynamic_columns, noise_estimate
 from .diagnose.effects import Samples, library
 from .diagnose.recording import AlignedRecording, align_recording, plausible_programs, poor_fit
 from .errormodel.errorset import ErrorSet
@@ -199,6 +199,10 @@ def _columns(eff, ctx, samples: Samples, nl: dict) -> np.ndarray | None:
     return C if C.shape[1] and np.isfinite(C).all() else None
 
 
+def _every(trace: Trace, k: int) -> Trace:
+    return Trace(trace.t_s[::k], trace.delta_l_um[::k], trace.segment, trace.phase, trace.header)
+
+
 def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
             options: ModelOptions, step=lambda msg: None, note=lambda msg: None) -> tuple[dict, list]:
     """``recordings``: (label, program or None, recording).  Returns the report and the
@@ -217,7 +221,12 @@ def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
     # what the geometry leaves (the effect library holds only a few kinds of geometry);
     # then the geometry again with what the diagnosis found
     step("a first estimate of the geometry")
-    geo0 = identify([(plan, rec.program, rec.trace) for _, _, rec, _ in first], options)
+    # (every 5th sample: this estimate only feeds the diagnosis, the final one uses all;
+    # with generic shapes of what any recording may hold - lags, a drift, reversal
+    # steps - as nuisances, so that it does not take them for geometry and hide them)
+    generic = [dynamic_columns(build_context(plan, rec.program)) for _, _, rec, _ in first]
+    geo0 = identify([(plan, rec.program, _every(rec.trace, 5)) for _, _, rec, _ in first], options,
+                    extra=generic)
     model0 = ErrorSet("geometry identified from the recordings", options,
                       tuple(geo0["model_state"].items()))
     done: list[Analysed] = []

@@ -467,12 +467,16 @@ def alignment_columns(plan: PlanFiles, ctx: Context, pose_only: bool = False) ->
     scale, and the smooth geometry beyond the model) and, unless ``pose_only``,
     different servo lags, a drift, and reversal-locked steps and pulses (backlash,
     lateral play, friction spikes)."""
-    at = np.arange(ctx.n)
-    cols = [np.column_stack(pose_blocks(plan, ctx))]
-    if pose_only:
-        return cols[0]
-    allg = Samples(at, ctx.t_s)
-    cols.append(ServoMismatch().columns(ctx, allg, {})[0])
+    pose = np.column_stack(pose_blocks(plan, ctx))
+    return pose if pose_only else np.column_stack([pose, dynamic_columns(ctx)])
+
+
+def dynamic_columns(ctx: Context) -> np.ndarray:
+    """What any recording may hold besides geometry, in generic shapes: different servo
+    lags, a drift, and reversal-locked steps and pulses (backlash, lateral play,
+    friction spikes)."""
+    allg = Samples(np.arange(ctx.n), ctx.t_s)
+    cols = [ServoMismatch().columns(ctx, allg, {})[0]]
     cols.append(ctx.u * (ctx.t_s / 3600.0)[:, None])
     widths = {f"width_{ctx.axis_names[j]}_um": 6.5 for j in linear_axes(ctx)
               if len(ctx.reversal_times[j])}
