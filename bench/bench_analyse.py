@@ -65,6 +65,20 @@ def main() -> None:
     ends = [t for t, _ in stamps[1:]] + [total]
     for (t, line), end in zip(stamps, ends):
         print(f"{end - t:7.1f} s  {line}")
+    import json
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+    from sdit_path.errormodel.errorset import load_error_set
+
+    truth = load_error_set("paper_table2").as_dict()
+    rep = json.loads((work / "out" / "analysis.json").read_text())
+    print("\nTable 2's errors against the determined combinations (z = error / stated std):")
+    for c in rep["geometry"]["combinations"]:
+        value = sum(t["coefficient"] * truth.get(t["parameter"], 0.0) for t in c["terms"])
+        print(f"  z {abs(c['estimate'] - value) / c['std']:5.2f}  truth {value:9.3f}  {c['text']}")
+    for x in rep["recordings"]:
+        print(f"  {x['file']}: {x['program']}, findings "
+              + ", ".join(f["effect"] for f in x["diagnosis"]["findings"]))
     print(f"\n{len(files)} recordings, {recorded:.0f} s recorded at 1 kHz; analysis {total:.1f} s "
           f"end to end (target 60 s); recorded time / analysis time = {recorded / total:.2f}")
 
