@@ -224,6 +224,7 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
             f.runner_up = earlier[f.effect].runner_up
             f.runner_up_ratio = earlier[f.effect].runner_up_ratio
             _confidence(f)
+    result.findings = _pair_ambiguity(result.findings)
     if timing_is_weak(result.alignment):
         # effects read through their timing (a lag of milliseconds) cannot be named
         # with confidence when the recording's timing is this uncertain
@@ -849,7 +850,8 @@ def _merge_aliased(findings: list, contribs: dict, ctx: Context, idx: np.ndarray
                    tau: np.ndarray) -> list:
     """Two effects this recording cannot tell apart, both selected, are one finding:
     the first named, the other in ``ambiguous_with``, their joint contribution and
-    both parameter sets (the other's prefixed with its name)."""
+    both parameter sets (the other's prefixed with its name).  One of them selected
+    and the other its mimic or a close runner-up: the finding names both as well."""
     for pair, how in ALIASED.items():
         both = [f for f in findings if f.effect in pair]
         if len(both) != 2:
@@ -867,7 +869,29 @@ def _merge_aliased(findings: list, contribs: dict, ctx: Context, idx: np.ndarray
             {"effect": drop.effect, "r2": 1.0}]
         _confidence(keep)
         findings = [f for f in findings if f is not drop]
+    return _pair_ambiguity(findings)
+
+
+def _pair_ambiguity(findings: list) -> list:
+    """One of an aliased pair selected, the other reproducing it (a listed mimic, or a
+    runner-up with nearly the same evidence): the recording cannot tell them apart
+    either, and the finding names both."""
+    for f in findings:
+        if f.ambiguous_with:
+            continue
+        for pair, how in ALIASED.items():
+            if f.effect not in pair:
+                continue
+            other = next(e for e in pair if e != f.effect)
+            if any(m["effect"] == other for m in f.mimics) or (
+                    f.runner_up == other and f.runner_up_ratio < AMBIGUOUS_RATIO):
+                f.ambiguous_with, f.separate_by = [other], how
+                _confidence(f)
     return findings
+
+
+#: a runner-up of an aliased pair within this evidence ratio makes the finding ambiguous
+AMBIGUOUS_RATIO = 1.1
 
 
 #: Effects whose signal is read through timing at the millisecond level.
@@ -887,7 +911,8 @@ def _confidence(f: Finding) -> None:
     ex_tr = f.rms_before_um ** 2 - f.rms_after_um ** 2
     ex_ho = f.heldout_rms_before_um ** 2 - f.heldout_rms_after_um ** 2
     generalises = ex_ho / ex_tr if ex_tr > 0 else 0.0
-    close = bool(f.mimics) or f.runner_up_ratio < 1.1  # the README's rule: no mimic
+    # the README's rule: no mimic, no close runner-up, not ambiguous
+    close = bool(f.mimics) or f.runner_up_ratio < 1.1 or bool(f.ambiguous_with)
     f.confidence = ("high" if generalises >= 0.5 and not close and not f.geometry_doubt else
                     "medium" if generalises >= 0.25 else "low")
 
