@@ -64,3 +64,23 @@ def config_with(default_text):
 def have_linuxcnc() -> bool:
     return Path("/usr/lib/python3/dist-packages").glob("gcode*.so") is not None and any(
         Path("/usr/lib/python3/dist-packages").glob("gcode*.so")) and shutil.which("rs274") is not None
+
+
+@pytest.fixture(scope="session")
+def golden_plans(tmp_path_factory) -> dict:
+    """``golden_small`` planned by the command at its feed (F1000, ``fast``) and at F400
+    (``slow``): the recordings tests share them."""
+    import subprocess
+    import sys
+
+    root = tmp_path_factory.mktemp("golden_plans")
+    text = (DATA / "golden_small.toml").read_text()
+    slow = root / "slow.toml"
+    slow.write_text(text.replace("feed_mm_per_min = 1000.0", "feed_mm_per_min = 400.0"))
+    out = {}
+    for name, cfg in (("fast", DATA / "golden_small.toml"), ("slow", slow)):
+        out[name] = root / name
+        r = subprocess.run([sys.executable, "-m", "sdit_path", "plan", str(cfg), "--out",
+                            str(out[name]), "-q"], capture_output=True, text=True, timeout=900)
+        assert r.returncode == 0, r.stderr
+    return out

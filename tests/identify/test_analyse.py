@@ -12,7 +12,6 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import DATA
 
 
 def run(*args, timeout=1200):
@@ -39,11 +38,9 @@ def geometry_file(path, seed):
 
 
 @pytest.fixture(scope="module")
-def recorded(tmp_path_factory):
+def recorded(tmp_path_factory, golden_plans):
     root = tmp_path_factory.mktemp("analyse")
-    plan = root / "plan"
-    r = run("plan", str(DATA / "golden_small.toml"), "--out", str(plan), "-q")
-    assert r.returncode == 0, r.stderr
+    plan = golden_plans["fast"]
     truth = geometry_file(root / "hidden.toml", seed=7)
     files = []
     for k, (prog, lead, ppm) in enumerate((("GOLD_A", 6.0, 90.0), ("GOLD_B", 11.0, -140.0))):
@@ -92,14 +89,10 @@ def test_recognised_aligned_and_geometry_within_its_uncertainty(recorded):
     assert aligned == ["GOLD_A_rec0.csv", "GOLD_B_rec1.csv"]
 
 
-def test_a_recording_of_another_feed_is_refused_and_nothing_is_written(recorded, tmp_path):
-    text = (DATA / "golden_small.toml").read_text()
-    slow = tmp_path / "slow.toml"
-    slow.write_text(text.replace("feed_mm_per_min = 1000.0", "feed_mm_per_min = 400.0"))
-    r = run("plan", str(slow), "--out", str(tmp_path / "slow"), "-q")
-    assert r.returncode == 0, r.stderr
+def test_a_recording_of_another_feed_is_refused_and_nothing_is_written(recorded, golden_plans,
+                                                                       tmp_path):
     rec = tmp_path / "slow.csv"
-    r = run("perturb", "--plan", str(tmp_path / "slow"), "--program", "GOLD_A", "--lead-s", "4",
+    r = run("perturb", "--plan", str(golden_plans["slow"]), "--program", "GOLD_A", "--lead-s", "4",
             "--noise-um", "0.2", "--out", str(rec), "-q")
     assert r.returncode == 0, r.stderr
     out = tmp_path / "out"

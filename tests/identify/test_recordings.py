@@ -12,7 +12,6 @@ import pytest
 
 from sdit_path.errormodel.errorset import load_error_set
 
-from conftest import DATA
 
 
 def run(*args, timeout=900):
@@ -21,17 +20,8 @@ def run(*args, timeout=900):
 
 
 @pytest.fixture(scope="module")
-def plans(tmp_path_factory):
-    root = tmp_path_factory.mktemp("recplans")
-    text = (DATA / "golden_small.toml").read_text()
-    slow = root / "slow.toml"
-    slow.write_text(text.replace("feed_mm_per_min = 1000.0", "feed_mm_per_min = 400.0"))
-    out = {}
-    for name, cfg in (("fast", DATA / "golden_small.toml"), ("slow", slow)):
-        out[name] = root / name
-        r = run("plan", str(cfg), "--out", str(out[name]), "-q")
-        assert r.returncode == 0, r.stderr
-    return out
+def plans(golden_plans):
+    return golden_plans
 
 
 def test_a_recording_started_early_on_a_wrong_clock_is_aligned_before_identification(
