@@ -201,23 +201,34 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     step("realigned with the findings")
     geometry = GeometryBeyond(plan.config.machine, plan.tested_travel())
 
-    def explain(names, al, jump):
+    by = {e.name: e for e in lib}
+
+    def profiled(findings) -> dict:
+        # a lag profiled with the timing keeps that value: searched again on the
+        # residual at a fixed timing, it drifts to what makes up for the timing (a
+        # mismatch's common lag went from 0 to the grid's end, 100 ms, and left 2.5 um
+        # at every dwell)
+        return {f.effect: {by[f.effect].timing_parameter[0]:
+                           f.nonlinear[by[f.effect].timing_parameter[0]]}
+                for f in findings if by[f.effect].timing_parameter
+                and by[f.effect].timing_parameter[0] in f.nonlinear}
+
+    def explain(names, al, jump, pinned):
         # a step of the set-up is no effect: taken out before the effects are judged
         # again, so that none of them (lateral play, backlash) is named for it
         y_fit = y if jump is None else y - jump.reading_um(ctx, al, t_m)
         return _explain(ctx, [e for e in lib if e.name in names], expected, t_m, y_fit, al,
-                        options, step, mimic_library=lib, geometry=geometry)
+                        options, step, mimic_library=lib, geometry=geometry, pinned=pinned)
 
-    result = explain(names, al, jump)
+    result = explain(names, al, jump, profiled(first.findings))
     kept = {f.effect for f in result.findings}
-    by = {e.name: e for e in lib}
     if kept != names and any(by[f.effect].timing_parameter for f in result.findings):
         # a lag kept without what it shared the first timing with (a contour smoothing
         # found beside it) reads the start afresh: once more with what was kept
         log.debug("settling again with %s", sorted(kept))
         al, jump, _ = _settle(ctx, lib, expected, t_m, y, pose, result.findings, first_al,
                               partners=False)
-        result = explain(kept, al, jump)
+        result = explain(kept, al, jump, profiled(result.findings))
     earlier = {f.effect: f for f in first.findings}
     for f in result.findings:  # the competition was the whole library in the first pass
         if f.effect in earlier:
@@ -500,15 +511,18 @@ def _model_columns(ctx, lib, expected, findings) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def _candidate(eff: Effect, ctx: Context, S: Samples, r: np.ndarray):
-    """An effect's nonlinear parameters searched on the residual ``r`` and its columns
-    there, or None when it has nothing to offer."""
+def _candidate(eff: Effect, ctx: Context, S: Samples, r: np.ndarray, pinned: dict | None = None):
+    """An effect's nonlinear parameters searched on the residual ``r`` (those in
+    ``pinned`` kept as given) and its columns there, or None when it has nothing to
+    offer."""
     try:
         nl = eff.search(ctx, S, r)
     except (ValueError, np.linalg.LinAlgError):
         return None
     if nl is None:
         return None
+    if pinned and eff.name in pinned:
+        nl = {**nl, **pinned[eff.name]}
     C, labels = eff.columns(ctx, S, nl)
     if C.shape[1] == 0 or not np.isfinite(C).all():
         return None
@@ -517,7 +531,8 @@ def _candidate(eff: Effect, ctx: Context, S: Samples, r: np.ndarray):
 
 def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
              y: np.ndarray, al: Alignment, opt: Options, step, finalize: bool = True,
-             mimic_library: list[Effect] | None = None, geometry=None) -> Diagnosis:
+             mimic_library: list[Effect] | None = None, geometry=None,
+             pinned: dict | None = None) -> Diagnosis:
     tau_all = al.program_time(t_m)
     T = ctx.t_s[-1]
     ok = np.isfinite(y) & (tau_all >= ctx.t_s[0]) & (tau_all <= T)
@@ -553,7 +568,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
         key = tuple(id(c) for c in rest_cols)
         memo = searched.setdefault(key, {})
         if eff.name not in memo:
-            memo[eff.name] = _candidate(eff, ctx, S_tr, r)
+            memo[eff.name] = _candidate(eff, ctx, S_tr, r, pinned)
         return memo[eff.name]
 
     while len(findings) < opt.max_effects:
