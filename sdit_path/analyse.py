@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .diagnose.context import build_context
+from .diagnose.context import Context, build_context
 from .diagnose.diagnose import Diagnosis, diagnose, dynamic_columns, noise_estimate
 from .diagnose.effects import Samples, library
 from .diagnose.recording import AlignedRecording, align_recording, plausible_programs, poor_fit
@@ -42,6 +42,7 @@ class Analysed:
     aligned: AlignedRecording
     diagnosis: Diagnosis
     trace: Trace  # the recording on program time (final alignment)
+    ctx: Context  # the program's context
 
 
 _WINDOW_S = 0.5
@@ -82,8 +83,8 @@ def dwell_score(plan: PlanFiles, program: str, still: np.ndarray) -> float:
     return float(np.max(hits - false))
 
 
-def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None
-          ) -> tuple[AlignedRecording, str]:
+def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
+          contexts: dict | None = None) -> tuple[AlignedRecording, str]:
     """The recording aligned to its program, and how the program was chosen.  Refuses
     (one line) a recording that fits no program of the plan, or fits another one better
     than the program named."""
@@ -113,7 +114,8 @@ def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None
     results, refusals = {}, {}
     for prog in candidates:
         try:
-            results[prog] = align_recording(plan, prog, trace, label)
+            results[prog] = align_recording(plan, prog, trace, label,
+                                            _context(plan, prog, contexts))
         except RecordingError as exc:
             refusals[prog] = str(exc).removeprefix(f"{label}: ")
     seen = ("dwells on the recording's still windows: " + ", ".join(
@@ -199,6 +201,15 @@ def _columns(eff, ctx, samples: Samples, nl: dict) -> np.ndarray | None:
     return C if C.shape[1] and np.isfinite(C).all() else None
 
 
+def _context(plan: PlanFiles, program: str, contexts: dict | None) -> Context:
+    """The program's context, built once per analysis."""
+    if contexts is None:
+        return build_context(plan, program)
+    if program not in contexts:
+        contexts[program] = build_context(plan, program)
+    return contexts[program]
+
+
 def _every(trace: Trace, k: int) -> Trace:
     return Trace(trace.t_s[::k], trace.delta_l_um[::k], trace.segment, trace.phase, trace.header)
 
@@ -209,9 +220,10 @@ def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
     analysed recordings (for pictures and aligned traces)."""
     first: list[tuple[str, str, AlignedRecording, Trace]] = []
     used: dict[str, str] = {}
+    contexts: dict = {}
     for label, named, trace in recordings:
         step(f"matching and aligning {label}")
-        rec, how = match(plan, trace, label, named)
+        rec, how = match(plan, trace, label, named, contexts)
         if rec.program in used:
             raise RecordingError(f"{label}: a second recording of {rec.program} (the first: "
                                  f"{used[rec.program]}); give each program once")
@@ -224,7 +236,7 @@ def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
     # (every 5th sample: this estimate only feeds the diagnosis, the final one uses all;
     # with generic shapes of what any recording may hold - lags, a drift, reversal
     # steps - as nuisances, so that it does not take them for geometry and hide them)
-    generic = [dynamic_columns(build_context(plan, rec.program)) for _, _, rec, _ in first]
+    generic = [dynamic_columns(_context(plan, rec.program, contexts)) for _, _, rec, _ in first]
     geo0 = identify([(plan, rec.program, _every(rec.trace, 5)) for _, _, rec, _ in first], options,
                     extra=generic)
     model0 = ErrorSet("geometry identified from the recordings", options,
@@ -232,7 +244,7 @@ def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
     done: list[Analysed] = []
     for label, how, rec, trace in first:
         step(f"diagnosing {label} ({rec.program})")
-        ctx = build_context(plan, rec.program)
+        ctx = _context(plan, rec.program, contexts)
         d = diagnose(plan, rec.program, trace, model0, progress=note, ctx=ctx,
                      alignment=rec.alignment)
         al = d.alignment
@@ -242,12 +254,11 @@ def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
         aligned = Trace(tau[inside], np.asarray(trace.delta_l_um, float)[inside],
                         np.array([], dtype=object), np.array([], dtype=object),
                         {**trace.header, "program": rec.program, "source": f"aligned {label}"})
-        done.append(Analysed(label, rec.program, how, rec, d, aligned))
+        done.append(Analysed(label, rec.program, how, rec, d, aligned, ctx))
     step("identifying the geometry with the effects found")
     experiments, extra, groups = [], [], []
     for a in done:
-        ctx = build_context(plan, a.program)
-        cols, grp = effect_columns(plan, a.diagnosis, options, ctx)
+        cols, grp = effect_columns(plan, a.diagnosis, options, a.ctx)
         if cols is not None and len(cols) != len(plan.trajectory(a.program).t_s):
             cols, grp = None, []  # not on the trajectory grid: identify without them
         experiments.append((plan, a.program, a.trace))

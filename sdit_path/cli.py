@@ -355,7 +355,6 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
     from pathlib import Path
 
     from .analyse import aligned_csv, analyse, file_stem, summary_text
-    from .diagnose.context import build_context
     from .diagnose.report import pictures
     from .errormodel.model import ModelOptions
     from .errors import ConfigError
@@ -392,7 +391,7 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
                 stem = f"{a.program}_{file_stem(a.label)}"
                 files[f"aligned/{stem}.csv"] = aligned_csv(a)
                 if not no_pictures:
-                    for name, png in pictures(a.diagnosis, build_context(plan, a.program)).items():
+                    for name, png in pictures(a.diagnosis, a.ctx).items():
                         files[f"pictures/{stem}_{name}.png"] = png
             step("writing")
             write_tree(out_dir, files, force=force, command="analyse", protect=protect)
@@ -517,7 +516,7 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
             ctx = build_context(plan, program)
             # matched and aligned as every command that reads a recording does it
             step("matching the recording to its program")
-            rec = align_recording(plan, program, trace, str(measured))
+            rec = align_recording(plan, program, trace, str(measured), ctx)
             try:
                 # with a geometric model the search is made again with what it predicts
                 result = diagnose(plan, program, trace, model, progress=step, ctx=ctx,

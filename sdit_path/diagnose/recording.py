@@ -116,10 +116,12 @@ def plausible_programs(plan: PlanFiles, trace: Trace) -> list[tuple[str, str]]:
     return out
 
 
-def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str) -> AlignedRecording:
+def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
+                    ctx=None) -> AlignedRecording:
     """Align ``trace`` (a recording of ``program``; ``label`` names it in messages) to
-    its program.  Refuses (RecordingError, one line) a recording whose duration does
-    not fit the program, naming the programs whose durations would."""
+    its program (``ctx``: its context, if the caller has it).  Refuses (RecordingError,
+    one line) a recording whose duration does not fit the program, naming the programs
+    whose durations would."""
     fits = plausible_programs(plan, trace)
     why = dict(fits)
     if why.get(program):
@@ -128,7 +130,7 @@ def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str) -> 
             f"{label}: not a recording of {program}: {why[program]}"
             + (f"; its duration fits {', '.join(others)}" if others else
                "; it fits no program of this plan (another plan, another feed?)"))
-    ctx = build_context(plan, program)
+    ctx = ctx or build_context(plan, program)
     expected = expected_reading(plan, ctx, None)
     t_m = np.asarray(trace.t_s, float)
     y = np.asarray(trace.delta_l_um, float)
