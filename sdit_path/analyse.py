@@ -14,13 +14,17 @@ the same poses.
 from __future__ import annotations
 
 import math
+import multiprocessing
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .diagnose.context import Context, build_context
 from .diagnose.diagnose import Diagnosis, diagnose, dynamic_columns, noise_estimate
+from .diagnose.diagnose import Options as DiagnosisOptions
 from .diagnose.effects import Samples, library
 from .diagnose.recording import AlignedRecording, align_recording, plausible_programs, poor_fit
 from .errormodel.errorset import ErrorSet
@@ -214,16 +218,86 @@ def _every(trace: Trace, k: int) -> Trace:
     return Trace(trace.t_s[::k], trace.delta_l_um[::k], trace.segment, trace.phase, trace.header)
 
 
+#: the diagnosis of each recording reads it at 500 Hz at most (the geometry, identified
+#: afterwards, reads every sample)
+DIAGNOSIS = DiagnosisOptions(max_rate_hz=500.0)
+
+#: the job the pool's workers run (set before the pool forks, so that the workers
+#: share the plan, the recordings and the contexts built so far without copying them)
+_JOB = None
+
+
+def _run(k: int):
+    try:
+        return True, _JOB(k)
+    except Exception as exc:  # handed back whole: the parent raises it
+        return False, (type(exc), str(exc), dict(exc.__dict__))
+
+
+def _reraise(failure):
+    cls, text, state = failure
+    exc = cls.__new__(cls)
+    Exception.__init__(exc, text)
+    exc.__dict__.update(state)
+    raise exc
+
+
+def default_jobs() -> int:
+    """Worker processes for the per-recording stages: one per core."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:
+        return max(1, os.cpu_count() or 1)
+
+
+def _each(job, labels: list[str], jobs: int, step, what: str) -> list:
+    """``job(k)`` for every recording, in order, in ``jobs`` worker processes (forked:
+    everything built so far is shared); the progress names each recording as its turn
+    comes.  BLAS runs one thread per process throughout the analysis, so the result does
+    not depend on how many workers there are (the same bytes with one or with many)."""
+    global _JOB
+    jobs = min(jobs, len(labels))
+    if jobs <= 1 or "fork" not in multiprocessing.get_all_start_methods():
+        out = []
+        for k, label in enumerate(labels):
+            step(what.format(label=label))
+            out.append(job(k))
+        return out
+    _JOB = job
+    out = []
+    try:
+        with multiprocessing.get_context("fork").Pool(jobs) as pool:
+            step(what.format(label=labels[0]))
+            for k, (ok, value) in enumerate(pool.imap(_run, range(len(labels)))):
+                if k:  # the first is announced as the pool starts
+                    step(what.format(label=labels[k]))
+                if not ok:
+                    _reraise(value)
+                out.append(value)
+    finally:
+        _JOB = None
+    return out
+
+
 def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
-            options: ModelOptions, step=lambda msg: None, note=lambda msg: None) -> tuple[dict, list]:
-    """``recordings``: (label, program or None, recording).  Returns the report and the
+            options: ModelOptions, step=lambda msg: None, note=lambda msg: None,
+            jobs: int = 1) -> tuple[dict, list]:
+    """``recordings``: (label, program or None, recording); ``jobs``: worker processes
+    for the per-recording stages (matching, diagnosis).  Returns the report and the
     analysed recordings (for pictures and aligned traces)."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _analyse(plan, recordings, options, step, note, jobs)
+
+
+def _analyse(plan, recordings, options, step, note, jobs):
     first: list[tuple[str, str, AlignedRecording, Trace]] = []
     used: dict[str, str] = {}
     contexts: dict = {}
-    for label, named, trace in recordings:
-        step(f"matching and aligning {label}")
-        rec, how = match(plan, trace, label, named, contexts)
+    labels = [label for label, _, _ in recordings]
+    matched = _each(lambda k: match(plan, recordings[k][2], recordings[k][0], recordings[k][1],
+                                    contexts),
+                    labels, jobs, step, "matching and aligning {label}")
+    for (label, named, trace), (rec, how) in zip(recordings, matched):
         if rec.program in used:
             raise RecordingError(f"{label}: a second recording of {rec.program} (the first: "
                                  f"{used[rec.program]}); give each program once")
@@ -241,12 +315,19 @@ def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
                     extra=generic)
     model0 = ErrorSet("geometry identified from the recordings", options,
                       tuple(geo0["model_state"].items()))
-    done: list[Analysed] = []
-    for label, how, rec, trace in first:
-        step(f"diagnosing {label} ({rec.program})")
+    def diagnosed(k):
+        label, how, rec, trace = first[k]
         ctx = _context(plan, rec.program, contexts)
-        d = diagnose(plan, rec.program, trace, model0, progress=note, ctx=ctx,
-                     alignment=rec.alignment)
+        d = diagnose(plan, rec.program, trace, model0, DIAGNOSIS,
+                     progress=note if jobs <= 1 else None, ctx=ctx, alignment=rec.alignment)
+        # the effect columns on the trajectory grid: made where the context's caches are
+        return d, effect_columns(plan, d, options, ctx)
+
+    results = _each(diagnosed, labels, jobs, step, "diagnosing {label}")
+    done: list[Analysed] = []
+    columns = []
+    for (label, how, rec, trace), (d, cols) in zip(first, results):
+        ctx = _context(plan, rec.program, contexts)
         al = d.alignment
         t_m = np.asarray(trace.t_s, float)
         tau = al.program_time(t_m)
@@ -255,10 +336,10 @@ def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
                         np.array([], dtype=object), np.array([], dtype=object),
                         {**trace.header, "program": rec.program, "source": f"aligned {label}"})
         done.append(Analysed(label, rec.program, how, rec, d, aligned, ctx))
+        columns.append(cols)
     step("identifying the geometry with the effects found")
     experiments, extra, groups = [], [], []
-    for a in done:
-        cols, grp = effect_columns(plan, a.diagnosis, options, a.ctx)
+    for a, (cols, grp) in zip(done, columns):
         if cols is not None and len(cols) != len(plan.trajectory(a.program).t_s):
             cols, grp = None, []  # not on the trajectory grid: identify without them
         experiments.append((plan, a.program, a.trace))

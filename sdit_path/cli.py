@@ -346,15 +346,18 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
 @click.option("--no-squareness", is_flag=True, help="Leave squareness out of the model.")
 @click.option("--no-location", is_flag=True, help="Leave rotary location errors out.")
 @click.option("--no-pictures", is_flag=True, help="Write no pictures.")
+@click.option("--jobs", default=None, type=click.IntRange(1, 64),
+              help="Worker processes for matching and diagnosis (default: one per core); "
+                   "the output is the same for any number.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress and no summary.")
 def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_order,
-                    no_squareness, no_location, no_pictures, quiet) -> None:
+                    no_squareness, no_location, no_pictures, jobs, quiet) -> None:
     """Analyse recordings of a plan's programs: geometry, effects and what stays
     unexplained, estimated together."""
     import json
     from pathlib import Path
 
-    from .analyse import aligned_csv, analyse, file_stem, summary_text
+    from .analyse import aligned_csv, analyse, default_jobs, file_stem, summary_text
     from .diagnose.report import pictures
     from .errormodel.model import ModelOptions
     from .errors import ConfigError
@@ -384,7 +387,8 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
                 recs.append((path, prog, read_trace(path)))
             options = ModelOptions("legendre", linear_order, rotary_order, not no_squareness,
                                    not no_location)
-            report, done = analyse(plan, recs, options, step=step, note=step.note)
+            report, done = analyse(plan, recs, options, step=step, note=step.note,
+                                   jobs=jobs or default_jobs())
             files = {"analysis.json": json.dumps(report, indent=2) + "\n",
                      "analysis.txt": summary_text(report)}
             for a in done:

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 from pathlib import Path, PurePosixPath
+
+import numpy as np
 
 from .config import Config, parse_config
 from .errors import ConfigError
@@ -27,12 +29,25 @@ class PlanFiles:
     directory: Path
     config: Config
     manifest: dict
+    #: trajectories read so far (each file is read and checked once per loaded plan;
+    #: its arrays are read-only)
+    _read: dict = field(default_factory=dict, compare=False, repr=False)
 
     @property
     def program_names(self) -> list[str]:
         return sorted({p["name"] for p in self.manifest["programs"]})
 
     def trajectory(self, program: str) -> Samples:
+        if program not in self._read:
+            samples = self._load_trajectory(program)
+            for f in fields(samples):
+                value = getattr(samples, f.name)
+                if isinstance(value, np.ndarray):
+                    value.setflags(write=False)
+            self._read[program] = samples
+        return self._read[program]
+
+    def _load_trajectory(self, program: str) -> Samples:
         entry = next((p for p in self.manifest["programs"] if p["name"] == program), None)
         if entry is None:
             raise ConfigError(str(self.directory),
