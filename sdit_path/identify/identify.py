@@ -55,6 +55,7 @@ class Gram:
     m: int
     segments: dict = field(default_factory=dict)  # id -> (J^T J, count)
     layers: dict = field(default_factory=dict)
+    blocks: dict = field(default_factory=dict)  # second -> ([J N]^T [J N], [J N]^T y)
 
 
 #: Eigenvalues of the reduced normal matrix below this share of the scale of the normal
@@ -92,7 +93,7 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
                     chunk: int = 200_000, segments: set[str] | None = None,
                     at: tuple[np.ndarray, np.ndarray] | None = None,
                     extra: np.ndarray | None = None, cache: dict | None = None,
-                    observe: bool = True) -> Gram:
+                    observe: bool = True, blocks_s: float | None = None) -> Gram:
     """Gram matrices of one experiment.  With ``trace`` the readings come from it
     (matched to the trajectory by time); without, only the design (y = 0).  With
     ``segments``, only the samples of those segments (design studies of a part).
@@ -109,7 +110,9 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
     drift), estimated together with the geometry and eliminated with the set-up, so
     that the geometry is not read from what these explain.  ``cache`` (a dict kept by
     the caller for this experiment) keeps the sensitivities between calls on the same
-    trace; ``observe=False`` skips the per-segment and per-layer blocks."""
+    trace; ``observe=False`` skips the per-segment and per-layer blocks.  With
+    ``blocks_s``, the normal equations of every ``blocks_s`` of the program are kept as
+    well (for :func:`block_covariance`)."""
     cfg = plan.config
     kin = Kinematics(cfg.machine)
     traj = plan.trajectory(program)
@@ -172,6 +175,14 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
         g.c += N.T @ yy
         g.yy += float(yy @ yy)
         g.m += len(sel)
+        if blocks_s and trace is not None and len(sel):
+            W = np.column_stack([J, N])
+            bid = np.floor(traj.t_s[sel] / blocks_s).astype(np.int64)
+            edges = np.flatnonzero(np.diff(bid)) + 1
+            for a, b in zip(np.r_[0, edges], np.r_[edges, len(sel)]):
+                Wb = W[a:b]
+                WW, Wy = g.blocks.get(int(bid[a]), (0.0, 0.0))
+                g.blocks[int(bid[a])] = (WW + Wb.T @ Wb, Wy + Wb.T @ yy[a:b])
         if not observe:
             continue
         names, inverse = np.unique(segment[sel], return_inverse=True)
@@ -189,6 +200,41 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
         a, n = g.layers.get(lay, (0.0, 0))
         g.layers[lay] = (a + J.T @ J, n + len(sel))
     return g
+
+
+#: the blocks (s of program time) over which the residual may be correlated: the
+#: uncertainties hold for model errors that stay within a second (a reversal's spike, a
+#: mode's ringing, a short stretch of unmodelled geometry)
+BLOCK_S = 1.0
+
+
+def block_covariance(grams: list[Gram], x: np.ndarray) -> np.ndarray | None:
+    """Covariance of the scaled parameters ``x`` from the spread of each block's score
+    (its share of the normal equations' right-hand side at the solution, the nuisances
+    eliminated) instead of from the noise alone: the sandwich S^-1 (sum s_b s_b^T) S^-1
+    with ``S`` the reduced normal matrix (pseudo-inverse).  White noise gives what the
+    noise alone gives; a residual correlated within the blocks (what the model lacks)
+    gives more.  None when the grams hold no blocks."""
+    if not all(g.blocks for g in grams):
+        return None
+    S, _, _, m = _schur(grams)
+    p = len(x)
+    omega = np.zeros((p, p))
+    n_blocks = 0
+    for g in grams:
+        Ci = np.linalg.pinv(g.C)
+        n = Ci @ (g.c - g.B.T @ x)
+        theta = np.r_[x, n]
+        M = Ci @ g.B.T  # nuisances' response to the parameters
+        for WW, Wy in g.blocks.values():
+            t = Wy - WW @ theta
+            sb = t[:p] - M.T @ t[p:]
+            omega += np.outer(sb, sb)
+            n_blocks += 1
+    if n_blocks < 2 * p:
+        return None  # too few blocks to estimate their spread
+    Si = np.linalg.pinv(S, rcond=1e-12, hermitian=True)
+    return Si @ omega @ Si * n_blocks / max(n_blocks - 1, 1)
 
 
 def _schur(grams: list[Gram]) -> tuple[np.ndarray, np.ndarray, float, int]:
@@ -319,7 +365,7 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
     for _ in range(4):
         nuis = [np.linalg.pinv(g.C) @ (g.c - g.B.T @ x_hat) for g in grams]
         corrected = [experiment_gram(plan, prog, tr, model, at=(x_hat * scale, n), extra=x,
-                                     cache=c, observe=False)
+                                     cache=c, observe=False, blocks_s=BLOCK_S)
                      for (plan, prog, tr), n, x, c in zip(experiments, nuis, extra, caches)]
         for g_new, g_old in zip(corrected, grams):
             g_new.segments, g_new.layers = g_old.segments, g_old.layers
@@ -331,6 +377,21 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
         if step < 0.01:
             break
     Vd = V[:, determined]
+    # the uncertainty that holds: the larger of what the noise alone gives and what the
+    # blocks' spread gives (a model error correlated within a second, which the noise
+    # alone does not cover: a reversal spike left in one recording put combinations
+    # 4.7-6.3 noise-only standard uncertainties off)
+    cov_d = np.diag(std[determined] ** 2)
+    hac = block_covariance(grams, x_hat) if determined.any() else None
+    if hac is not None:
+        cov_b = Vd.T @ hac @ Vd
+        sd_b = np.sqrt(np.maximum(np.diag(cov_b), 1e-300))
+        # the blocks' covariance, each variance raised to the noise-only one where that
+        # is larger (the correlations kept)
+        up = np.maximum(std[determined] / sd_b, 1.0)
+        cov_d = cov_b * np.outer(up, up)
+        std = std.copy()
+        std[determined] = np.sqrt(np.diag(cov_d))
     combos = [_combination(model, V[:, i], est[i], std[i], scale) for i in np.flatnonzero(determined)]
     individually = []
     aliased = []
@@ -339,7 +400,8 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
         e[j] = 1.0
         inside = float(np.sum((Vd.T @ e) ** 2))
         if inside > 1 - 1e-6:
-            var = float(np.sum(V[j, determined] ** 2 / lam[determined])) * sigma ** 2
+            w = V[j, determined]
+            var = max(float(np.sum(w ** 2 / lam[determined])) * sigma ** 2, float(w @ cov_d @ w))
             individually.append({"parameter": p.name, "estimate": float(x_hat[j] * scale[j]),
                                  "std": float(math.sqrt(var) * scale[j]), "unit": p.unit})
         else:
@@ -364,6 +426,9 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
         "samples": m, "experiments": [{"program": p} for _, p, _ in experiments],
         "noise_std_um": sigma, "residual_rms_um": math.sqrt(max(rss, 0.0) / max(m, 1)),
         "rank": rank, "determined": int(determined.sum()),
+        "uncertainty": {"method": "the larger of the noise-only and the block-sandwich "
+                                  "covariance (blocks of program time)",
+                        "block_s": BLOCK_S, "blocks": hac is not None},
         "exact_chain": {"iterations": len(steps), "steps_in_std": steps,
                         "converged": bool(steps) and steps[-1] < 0.01},
         "combinations": [{"terms": [{"parameter": n, "coefficient": c, "typical_contribution": t}

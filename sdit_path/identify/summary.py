@@ -26,7 +26,9 @@ def summary_text(report: dict, max_combinations: int = 20) -> str:
                      "what the model makes of them, not established machine errors.")
     lines.append(f"What the data determine: {report['determined']} independent combination(s) "
                  f"(structural rank {report['rank']}; a combination counts as determined when its "
-                 f"standard uncertainty is below half a typical error).")
+                 f"standard uncertainty is below half a typical error; uncertainties are the "
+                 f"larger of the noise's and the spread over 1 s blocks of the recordings, which "
+                 f"holds for what the model lacks within a second).")
     for k, c in enumerate(report["combinations"][:max_combinations], start=1):
         lines.append(f"  {k:2d}. {c['text']}")
     if len(report["combinations"]) > max_combinations:
