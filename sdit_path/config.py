@@ -124,6 +124,30 @@ class CurveConfig:
     amplitude: float
     waves_per_sector: int
     cap_elevation_deg: float
+    overrides: tuple["SectorCurve", ...] = ()
+
+    def for_sector(self, layer: str, sector: int, projection: str) -> tuple[float, int, str]:
+        """(amplitude, waves per sector, projection) of the curves of one sector: its
+        override where there is one (``sector`` is 1-based, as in ``D3``)."""
+        for o in self.overrides:
+            if o.sector == f"{layer}{sector}":
+                return (self.amplitude if o.amplitude is None else o.amplitude,
+                        self.waves_per_sector if o.waves_per_sector is None else o.waves_per_sector,
+                        projection if o.projection is None else o.projection)
+        return self.amplitude, self.waves_per_sector, projection
+
+
+@dataclass(frozen=True, slots=True)
+class SectorCurve:
+    """A re-planned sector (``[[test.curve.override]]``): its curves' own amplitude,
+    waves and projection (None: the test's).  Every curve keeps the sector's nodes on
+    the lower track with zero slope there, so any values stay tangent-continuous with
+    the neighbours."""
+
+    sector: str  # layer and 1-based sector, e.g. "D3"
+    amplitude: float | None = None
+    waves_per_sector: int | None = None
+    projection: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -599,8 +623,8 @@ def _test(r: _Reader, root: dict, machine: MachineConfig) -> TestConfig:
         raise r.fail("test.passes", f"expected each pass at most once, got {list(passes)}")
     transit = r.string(t, "test.transit", "meridian", TRANSITS)
     projection = r.string(t, "test.projection", "stereographic", PROJECTIONS)
-    c = r.table(t, "test.curve", ("amplitude", "waves_per_sector", "cap_elevation_deg"),
-                required=False)
+    c = r.table(t, "test.curve", ("amplitude", "waves_per_sector", "cap_elevation_deg",
+                                  "override"), required=False)
     amplitude = r.number(c, "test.curve.amplitude", 1.0, gt=0, le=1)
     waves = r.integer(c, "test.curve.waves_per_sector", 1, ge=1, le=10)
     cap = r.number(c, "test.curve.cap_elevation_deg", (elev[-1] + 90.0) / 2.0, le=90, unit="deg")
@@ -611,8 +635,43 @@ def _test(r: _Reader, root: dict, machine: MachineConfig) -> TestConfig:
                       dwell_s=dwell, feed_mm_per_min=feed, passes=passes, transit=transit,
                       projection=projection,
                       curve=CurveConfig(amplitude=amplitude, waves_per_sector=waves,
-                                        cap_elevation_deg=cap),
+                                        cap_elevation_deg=cap,
+                                        overrides=_overrides(r, c, len(elev), nodes)),
                       rotary=_rotary(r, t, machine))
+
+
+def _overrides(r: _Reader, c: dict, tracks: int, nodes: int) -> tuple[SectorCurve, ...]:
+    """``[[test.curve.override]]``: one table per re-planned sector."""
+    raw = c.get("override", [])
+    key = "test.curve.override"
+    if isinstance(raw, dict):
+        raw = [raw]
+    if not isinstance(raw, list) or not all(isinstance(o, dict) for o in raw):
+        raise r.fail(key, f"expected [[{key}]] tables, got {_describe(raw)}")
+    if len(raw) > 25 * 72:
+        raise r.fail(key, f"expected at most one override per sector, got {len(raw)}")
+    letters = "ABCDEFGHIJKLMNOPQRSTUVWXY"[:tracks]
+    out, seen = [], set()
+    base = key
+    for i, o in enumerate(raw, start=1):
+        key = f"{base}[{i}]" if len(raw) > 1 else base
+        r.no_unknown(o, key, ("sector", "amplitude", "waves_per_sector", "projection"))
+        sector = r.string(o, f"{key}.sector")
+        ok = (len(sector) >= 2 and sector[0] in letters and sector[1:].isdigit()
+              and 1 <= int(sector[1:]) <= nodes and str(int(sector[1:])) == sector[1:])
+        if not ok:
+            raise r.fail(f"{key}.sector", f"expected a layer letter ({letters[0]}-{letters[-1]}) and a "
+                                          f"sector number 1-{nodes}, such as {letters[-1]}{min(3, nodes)}, "
+                                          f"got {_short(sector)}")
+        if sector in seen:
+            raise r.fail(f"{key}.sector", f"expected each sector at most once, got {sector} twice")
+        seen.add(sector)
+        out.append(SectorCurve(
+            sector,
+            r.number(o, f"{key}.amplitude", gt=0, le=1) if "amplitude" in o else None,
+            r.integer(o, f"{key}.waves_per_sector", ge=1, le=10) if "waves_per_sector" in o else None,
+            r.string(o, f"{key}.projection", choices=PROJECTIONS) if "projection" in o else None))
+    return tuple(sorted(out, key=lambda x: (x.sector[0], int(x.sector[1:]))))
 
 
 def _rotary(r: _Reader, t: dict, machine: MachineConfig) -> RotaryConfig:

@@ -93,3 +93,33 @@ def test_cap_elevation_must_lie_above_top_track(config_with):
 def test_feed_beyond_machine_is_refused(config_with):
     with pytest.raises(ConfigError, match="feed the machine can reach"):
         config_with("feed_mm_per_min", "90000.0")
+
+
+def _with_overrides(text: str, *tables: str) -> str:
+    return text + "".join(f"\n[[test.curve.override]]\n{t}\n" for t in tables)
+
+
+def test_sector_overrides_parse_and_change_only_their_sector(default_text):
+    cfg = parse_config(_with_overrides(default_text, 'sector = "D3"\namplitude = 0.5\nwaves_per_sector = 2',
+                                       'sector = "B1"\nprojection = "vertical"'), "t.toml")
+    curve = cfg.test.curve
+    assert [o.sector for o in curve.overrides] == ["B1", "D3"]
+    assert curve.for_sector("D", 3, "stereographic") == (0.5, 2, "stereographic")
+    assert curve.for_sector("B", 1, "stereographic") == (1.0, 1, "vertical")
+    assert curve.for_sector("D", 2, "stereographic") == (1.0, 1, "stereographic")
+
+
+@pytest.mark.parametrize("tables, message", [
+    (['sector = "F1"'], r"override.sector: expected a layer letter \(A-E\) and a sector number 1-6"),
+    (['sector = "D7"'], "sector number 1-6"),
+    (['sector = "D03"'], "got 'D03'"),
+    (['sector = 3'], "expected a string"),
+    (['sector = "D3"\namplitude = 1.5'], r"override.amplitude: expected a value <= 1"),
+    (['sector = "D3"\nwaves_per_sector = 0'], "override.waves_per_sector"),
+    (['sector = "D3"\nprojection = "conic"'], "expected one of stereographic, vertical"),
+    (['sector = "D3"\nfeed = 100'], r"override.feed: unknown key"),
+    (['sector = "D3"', 'sector = "D3"'], r"override\[2\].sector: expected each sector at most once"),
+])
+def test_bad_sector_overrides_name_the_field(default_text, tables, message):
+    with pytest.raises(ConfigError, match=message):
+        parse_config(_with_overrides(default_text, *tables), "t.toml")

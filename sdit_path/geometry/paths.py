@@ -149,9 +149,10 @@ class PathBuilder:
     def _wave(self, layer: Layer, seg) -> WaveCurve:
         h, t = self.hemi, self.config.test
         span = 2.0 * math.pi / h.nodes_per_track
+        amplitude, waves, projection = t.curve.for_sector(layer.name, seg.sector, t.projection)
         return WaveCurve(h.centre_mm, h.radius_mm, layer.lower_elevation_rad,
-                         layer.upper_elevation_rad, t.curve.amplitude, t.curve.waves_per_sector,
-                         span, t.projection, seg.azimuth_start_rad, seg.azimuth_end_rad)
+                         layer.upper_elevation_rad, amplitude, waves, span, projection,
+                         seg.azimuth_start_rad, seg.azimuth_end_rad)
 
     def segment_run(self, layer: Layer, segs: list) -> Run:
         """One run over consecutive segments of one sector (the whole sector is cached)."""

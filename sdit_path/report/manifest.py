@@ -129,7 +129,13 @@ def manifest(result: PlanResult, files: dict[str, str | bytes] | None = None) ->
                  "projection": cfg.test.projection,
                  "curve": {"amplitude": cfg.test.curve.amplitude,
                            "waves_per_sector": cfg.test.curve.waves_per_sector,
-                           "cap_elevation_deg": cfg.test.curve.cap_elevation_deg}},
+                           "cap_elevation_deg": cfg.test.curve.cap_elevation_deg,
+                           **({"overrides": [
+                               {k: v for k, v in (("sector", o.sector), ("amplitude", o.amplitude),
+                                                  ("waves_per_sector", o.waves_per_sector),
+                                                  ("projection", o.projection)) if v is not None}
+                               for o in cfg.test.curve.overrides]}
+                              if cfg.test.curve.overrides else {})}},
         "tracks": [{"name": t.name, "elevation_deg": _deg(t.elevation_rad)} for t in hemi.tracks],
         "nodes": [{"id": n.id, "track": n.track, "azimuth_deg": _deg(n.azimuth_rad),
                    "elevation_deg": _deg(n.elevation_rad), "position_mm": _mm(n.position_mm),

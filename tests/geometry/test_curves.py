@@ -62,3 +62,32 @@ def test_wave_touches_both_tracks(default_config):
     elev = np.degrees(np.arcsin(p[:, 2] / h.radius_mm))
     assert elev.min() == pytest.approx(18.0, abs=1e-6)
     assert elev.max() == pytest.approx(36.0, abs=1e-4)
+
+
+def test_overridden_sectors_stay_in_their_patch_and_join_their_neighbours(default_text):
+    from sdit_path.config import parse_config
+    from sdit_path.geometry.paths import PathBuilder
+
+    text = default_text + "".join(
+        f'\n[[test.curve.override]]\nsector = "{s}"\n{body}\n' for s, body in
+        (("D3", "amplitude = 0.4\nwaves_per_sector = 3\nprojection = \"vertical\""),
+         ("D4", "waves_per_sector = 2"), ("A1", "amplitude = 0.3\nprojection = \"vertical\"")))
+    cfg = parse_config(text, "t.toml")
+    h = partition(cfg)
+    builder = PathBuilder(cfg, h)
+    t = np.linspace(0, 1, 1001)
+    for la in (x for x in h.layers if x.name in "AD"):
+        curves = [builder._wave(la, s) for s in la.segments]
+        for a, b in zip(curves, curves[1:] + curves[:1]):
+            assert np.allclose(a(np.array([1.0]))[0], b(np.array([0.0]))[0], atol=1e-9)
+            ta, tb = tangent(a, 1.0), tangent(b, 0.0)
+            assert np.degrees(np.arccos(np.clip(ta @ tb, -1, 1))) < 0.01
+        for seg, c in zip(la.segments, curves):
+            p = c(t) - h.centre_mm
+            assert np.abs(np.linalg.norm(p, axis=1) - h.radius_mm).max() < 1e-9
+            elev = np.arcsin(p[:, 2] / h.radius_mm)
+            assert elev.min() >= la.lower_elevation_rad - 1e-9
+            assert elev.max() <= la.upper_elevation_rad + 1e-9
+        d3 = [c for s, c in zip(la.segments, curves) if s.sector == 3]
+        if la.name == "D":
+            assert (d3[0].amplitude, d3[0].waves, d3[0].projection) == (0.4, 3, "vertical")
