@@ -406,6 +406,64 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
         click.echo(files["analysis.txt"], nl=False)
 
 
+@main.command("replan")
+@click.option("--plan", "plan_dir", required=True, type=click.Path(file_okay=False),
+              help="A directory written by sdit-path plan.")
+@click.option("--segment", "segments", multiple=True,
+              help="Re-plan this segment's sector (repeat), e.g. D3-2; default: every bad one.")
+@click.option("--analysis", "analysis_file", type=click.Path(dir_okay=False),
+              help="analysis.json of recordings of this plan: segments it left unexplained "
+                   "count as bad too.")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Folder for the re-planned plan, replan.json and replan.txt.")
+@click.option("--force", is_flag=True, help="Replace an earlier replan output in --out.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress and no summary.")
+def replan_command(plan_dir, segments, analysis_file, out_dir, force, quiet) -> None:
+    """Find a plan's bad segments, say why, re-plan their sectors and write the
+    re-planned plan (the config carries the new curves as overrides)."""
+    import json
+    from pathlib import Path
+
+    from .errors import ConfigError
+    from .output import check_output, write_tree
+    from .pipeline import plan, step_count
+    from .planfiles import load_plan
+    from .replan import analysis_reasons, replan, report_json, report_text
+    from .report.manifest import plan_directory_files
+
+    try:
+        old = load_plan(plan_dir)
+        measured = None
+        if analysis_file:
+            try:
+                data = json.loads(Path(analysis_file).read_text(encoding="utf-8"))
+            except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+                raise ConfigError(analysis_file, f"expected the analysis.json written by "
+                                                 f"sdit-path analyse ({type(exc).__name__})") from None
+            measured = analysis_reasons(old, data, analysis_file)
+        protect = (Path(plan_dir) / "plan.json", Path(plan_dir) / "config.toml",
+                   *((analysis_file,) if analysis_file else ()))
+        check_output(out_dir, force, "replan", protect)
+        with _Steps(quiet, None, "reviewing the plan") as step:
+            result = replan(old, list(segments) or None, on_step=step.note, measured=measured)
+            step("planning with the chosen curves")
+            planned = plan(result.config, on_step=step.note)
+            files = plan_directory_files(planned, on_step=step.note)
+            report = report_json(result)
+            manifest = json.loads(files["plan.json"])
+            manifest["replan"] = {"from": str(Path(plan_dir).name), **report}
+            files["plan.json"] = json.dumps(manifest, indent=2, ensure_ascii=False) + "\n"
+            files["replan.json"] = json.dumps(report, indent=2) + "\n"
+            files["replan.txt"] = report_text(result)
+            step("writing")
+            write_tree(out_dir, files, force=force, command="replan", protect=protect)
+    except SditError as exc:
+        _fail(exc)
+        return
+    if not quiet:
+        click.echo(files["replan.txt"], nl=False)
+
+
 @main.command("perturb")
 @click.option("--plan", "plan_dir", required=True, type=click.Path(file_okay=False),
               help="A directory written by sdit-path plan.")

@@ -56,6 +56,7 @@ class Gram:
     segments: dict = field(default_factory=dict)  # id -> (J^T J, count)
     layers: dict = field(default_factory=dict)
     blocks: dict = field(default_factory=dict)  # second -> ([J N]^T [J N], [J N]^T y)
+    segment_nuisances: dict = field(default_factory=dict)  # id -> (J^T N, N^T N)
 
 
 #: Eigenvalues of the reduced normal matrix below this share of the scale of the normal
@@ -93,7 +94,8 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
                     chunk: int = 200_000, segments: set[str] | None = None,
                     at: tuple[np.ndarray, np.ndarray] | None = None,
                     extra: np.ndarray | None = None, cache: dict | None = None,
-                    observe: bool = True, blocks_s: float | None = None) -> Gram:
+                    observe: bool = True, blocks_s: float | None = None,
+                    segment_nuisances: bool = False) -> Gram:
     """Gram matrices of one experiment.  With ``trace`` the readings come from it
     (matched to the trajectory by time); without, only the design (y = 0).  With
     ``segments``, only the samples of those segments (design studies of a part).
@@ -112,7 +114,8 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
     the caller for this experiment) keeps the sensitivities between calls on the same
     trace; ``observe=False`` skips the per-segment and per-layer blocks.  With
     ``blocks_s``, the normal equations of every ``blocks_s`` of the program are kept as
-    well (for :func:`block_covariance`)."""
+    well (for :func:`block_covariance`); with ``segment_nuisances``, each segment's
+    J^T N and N^T N too (what it adds once the set-up is eliminated)."""
     cfg = plan.config
     kin = Kinematics(cfg.machine)
     traj = plan.trajectory(program)
@@ -196,6 +199,10 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
             Js = J[rs]
             a, n = g.segments.get(sid, (0.0, 0))
             g.segments[sid] = (a + Js.T @ Js, n + len(rs))
+            if segment_nuisances:
+                Ns = N[rs]
+                b, c = g.segment_nuisances.get(sid, (0.0, 0.0))
+                g.segment_nuisances[sid] = (b + Js.T @ Ns, c + Ns.T @ Ns)
         lay = program
         a, n = g.layers.get(lay, (0.0, 0))
         g.layers[lay] = (a + J.T @ J, n + len(sel))

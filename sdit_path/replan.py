@@ -1,0 +1,609 @@
+"""Re-planning bad segments (the paper's D3): find them, say why, replace their sector's
+curves, and write the re-planned plan.
+
+A single 20 deg segment determines nothing about the machine on its own; a segment is
+bad for what it adds to, or spoils in, the whole test.  Each reason is a value with a
+number and the limit it broke:
+
+- ``clearance``: the smallest distance between parts over the segment (mm), below
+  ``clearance_factor`` x the config's safety clearance;
+- ``travel_margin``: the smallest distance of any axis to its travel limit (mm or deg);
+- ``speed_dip``: the lowest speed while cruising over the programmed feed: the curvature
+  caps the speed (a curve the axes cannot follow at the feed);
+- ``acceleration``: the largest axis acceleration over its limit: hard accelerations
+  are where servo errors grow;
+- ``servo_sensitivity``: what a 1 ms lag of one axis changes in the bar reading (RMS
+  over the segment, um), over the plan's median: the segment reads dynamics as much as
+  geometry;
+- ``rotary_rate``: a rotary axis that would turn faster than its limit at the feed;
+- ``information``: the segment's share of the information of the combinations the
+  whole test determines, per share of the test's time: a segment that costs time and
+  adds little.
+
+Candidates for a bad segment's sector (same nodes, inside the same patch, on the
+sphere, tangent-continuous with the neighbours: see
+:class:`..config.SectorCurve`) are planned like any layer (reach, interference,
+timing) and chosen by a documented objective, in this order: feasible; clearing the
+most of the sector's reasons; then the largest information of the whole test's
+determined combinations (log-determinant of their information matrix, nats: +0.1 makes
+their geometric-mean standard uncertainty exp(-0.1 / 2k) times smaller, k the
+combinations), gains within 0.05 nats counting as a tie; then the shorter layer.  The sector as planned is a candidate too: it
+stays when nothing does better.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .config import Config, SectorCurve, parse_config
+from .errormodel.model import ModelOptions, build_model, prior_scale
+from .errors import ConfigError
+from .geometry.hemisphere import partition
+from .geometry.paths import PathBuilder
+from .identify.identify import STRUCTURAL, _schur, experiment_gram
+from .interference.scene import Scene
+from .machine.kinematics import Kinematics
+from .pipeline import check_layer
+from .planfiles import PlanFiles
+from .sim.simulate import axis_values_rad
+from .timing.trajectory import Samples, Timer, sample
+
+
+@dataclass(frozen=True, slots=True)
+class Limits:
+    """Where a segment's value makes it bad (see the module text)."""
+
+    clearance_factor: float = 3.0
+    travel_margin_mm: float = 5.0
+    travel_margin_deg: float = 5.0
+    speed_ratio: float = 0.9
+    acceleration_ratio: float = 0.5
+    servo_over_median: float = 1.5
+    information_per_time: float = 0.25
+
+
+@dataclass(frozen=True, slots=True)
+class Reason:
+    kind: str
+    value: float
+    limit: float
+    unit: str
+    text: str
+
+    def as_json(self) -> dict:
+        return {"kind": self.kind, "value": self.value, "limit": self.limit, "unit": self.unit,
+                "text": self.text}
+
+
+@dataclass
+class LayerEval:
+    """One layer as planned with one set of curves: its per-segment values and its
+    information block (the Schur complement of its design)."""
+
+    layer: str
+    feasible: bool
+    infeasible: list[str]
+    cycle_s: float
+    values: dict[str, dict]  # segment -> name -> value
+    segment_info: dict[str, np.ndarray]  # segment -> J^T J (scaled parameters)
+    schur: np.ndarray
+    samples: Samples | None = None
+
+
+@dataclass
+class Candidate:
+    sector: str
+    curve: SectorCurve | None  # None: the sector as planned
+    evaluation: LayerEval
+    information_nats: float = 0.0
+    cleared: list[str] = field(default_factory=list)
+    remaining: list[str] = field(default_factory=list)
+
+    @property
+    def label(self) -> str:
+        if self.curve is None:
+            return "as planned"
+        c = self.curve
+        return ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in
+                         (("amplitude", c.amplitude), ("waves", c.waves_per_sector),
+                          ("projection", c.projection)) if v is not None)
+
+
+def _model(cfg: Config, travel: dict) -> tuple:
+    model = build_model(cfg.machine, travel, ModelOptions())
+    return model, np.array([prior_scale(p) for p in model.parameters])
+
+
+def evaluate_layer(cfg: Config, layer_name: str, travel: dict, kin: Kinematics,
+                   scene: Scene) -> LayerEval:
+    """Plan, check and time one layer of ``cfg``; its per-segment values and design."""
+    hemi = partition(cfg)
+    layer = next(la for la in hemi.layers if la.name == layer_name)
+    path = PathBuilder(cfg, hemi).layer_path(layer)
+    _, checks = check_layer(path, cfg, kin, scene)
+    bad = [c.piece_id for c in checks if not c.feasible]
+    values: dict[str, dict] = {}
+    for c in checks:
+        if c.kind != "segment":
+            continue
+        values[c.piece_id] = {
+            "clearance_mm": c.min_clearance_mm,
+            "rotary_rate_warnings": len(c.warnings),
+            "feasible": c.feasible,
+            "violations": [v.describe() for v in c.violations]}
+    if bad or not path.items:
+        return LayerEval(layer_name, False, bad, math.inf, values, {}, np.zeros((0, 0)))
+    timer = Timer(cfg, kin)
+    timed = timer.time_layer(path)
+    s = sample(timed, timer, cfg.timing.sample_rate_hz)
+    _motion_values(cfg, kin, s, values)
+    info, S = _design(cfg, s, travel, layer_name)
+    return LayerEval(layer_name, True, [], float(timed.duration_s), values, info, S, s)
+
+
+def _motion_values(cfg: Config, kin: Kinematics, s: Samples, values: dict) -> None:
+    """Travel margin, speed dip, acceleration and servo sensitivity per segment."""
+    q = axis_values_rad(s, kin)
+    dt = float(s.t_s[1] - s.t_s[0]) if len(s.t_s) > 1 else 1e-3
+    qd = np.gradient(q, dt, axis=0)
+    qdd = np.gradient(qd, dt, axis=0)
+    pivot = np.array(cfg.ballbar.pivot_mm)
+    ball = kin.forward(q)
+    u = (ball - pivot) / np.linalg.norm(ball - pivot, axis=1)[:, None]
+    # the reading change of a 1 ms lag of axis i: u . (d ball / d q_i) qdot_i 1 ms
+    sens = np.zeros((len(q), q.shape[1]))
+    for i in range(q.shape[1]):
+        h = 1e-6
+        dq = np.zeros(q.shape[1])
+        dq[i] = h
+        dball = (kin.forward(q + dq) - kin.forward(q - dq)) / (2 * h)
+        sens[:, i] = np.abs(np.einsum("nj,nj->n", u, dball) * qd[:, i]) * 1e-3 * 1e3  # um / ms
+    feed = cfg.test.feed_mm_per_min / 60.0
+    acc_lim = np.array([ax.max_acceleration for ax in kin.axes])  # mm/s^2, rad/s^2
+    margins = []
+    for j, ax in enumerate(kin.axes):
+        lo, hi = ax.travel
+        if ax.is_rotary and (hi - lo) >= 2 * math.pi - 1e-9:
+            margins.append(None)  # endless
+        else:
+            margins.append((lo, hi, ax.is_rotary))
+    labels = s.segment
+    moving = s.phase != "dwell"
+    # a speed dip is read away from the stops: beyond the time the slowest axis needs to
+    # reach the feed and to settle its acceleration
+    a_min = min(ax.max_acceleration for ax in kin.axes if not ax.is_rotary)
+    j_min = min(ax.max_jerk for ax in kin.axes if not ax.is_rotary)
+    ramp_s = 2.0 * (feed / a_min + a_min / j_min)
+    stopped = ~moving | (s.speed_mm_per_s < 1e-3 * feed)
+    t_stop = s.t_s[stopped]
+    if len(t_stop):
+        k = np.clip(np.searchsorted(t_stop, s.t_s), 1, len(t_stop))
+        near = np.minimum(np.abs(s.t_s - t_stop[k - 1]),
+                          np.abs(t_stop[np.minimum(k, len(t_stop) - 1)] - s.t_s))
+    else:
+        near = np.full(len(s.t_s), np.inf)
+    cruise = (near > ramp_s) & moving
+    for sid, v in values.items():
+        m = (labels == sid) & moving
+        if not m.any():
+            continue
+        c = m & cruise
+        v["min_speed_ratio"] = float(s.speed_mm_per_s[c].min() / feed) if c.any() else 1.0
+        v["acceleration_ratio"] = float(np.max(np.abs(qdd[m]) / acc_lim))
+        v["servo_um_per_ms"] = float(np.sqrt(np.mean(np.max(sens[m], axis=1) ** 2)))
+        v["duration_s"] = float(m.sum() * dt)
+        lin, rot = [], []
+        for j, mg in enumerate(margins):
+            if mg is None:
+                continue
+            lo, hi, is_rot = mg
+            d = float(np.min(np.minimum(q[m, j] - lo, hi - q[m, j])))
+            (rot if is_rot else lin).append(math.degrees(d) if is_rot else d)
+        v["travel_margin_mm"] = min(lin) if lin else None
+        v["travel_margin_deg"] = min(rot) if rot else None
+
+
+def _design(cfg: Config, s: Samples, travel: dict, layer: str) -> tuple[dict, np.ndarray]:
+    """Per-segment J^T J and the layer's Schur complement (set-up eliminated), from the
+    timed samples (no recording: the design alone)."""
+    model, _ = _model(cfg, travel)
+    plan = PlanFiles(None, cfg, {"programs": [{"name": layer}]})
+    plan._read[layer] = s
+    g = experiment_gram(plan, layer, None, model, segment_nuisances=True)
+    S, _, _, _ = _schur([g])
+    # each segment's information once the layer's set-up is eliminated: its rows of the
+    # regressors less what the set-up, fitted over the whole layer, takes from them
+    M = np.linalg.pinv(g.C) @ g.B.T
+    info = {}
+    for sid, (a, _) in g.segments.items():
+        b, c = g.segment_nuisances[sid]
+        info[sid] = a - b @ M - M.T @ b.T + M.T @ c @ M
+    return info, S
+
+
+@dataclass
+class Review:
+    """The whole plan judged: per segment its values and reasons; the test's determined
+    directions and information."""
+
+    values: dict[str, dict]
+    reasons: dict[str, list[Reason]]
+    layers: dict[str, LayerEval]
+    directions: np.ndarray  # determined directions (scaled parameters), columns
+    information_nats: float
+
+
+def _logdet(V: np.ndarray, S: np.ndarray) -> float:
+    M = V.T @ S @ V
+    sign, val = np.linalg.slogdet(0.5 * (M + M.T))
+    return float(val) if sign > 0 else -math.inf
+
+
+def review(cfg: Config, travel: dict, limits: Limits = Limits(), on_step=None,
+           kin: Kinematics | None = None, scene: Scene | None = None,
+           layers: dict[str, LayerEval] | None = None,
+           directions: np.ndarray | None = None) -> Review:
+    """Every layer of ``cfg`` evaluated (those in ``layers`` taken as they are) and every
+    segment judged.  ``directions``: the determined directions to measure information
+    along (default: this plan's own)."""
+    kin = kin or Kinematics(cfg.machine)
+    scene = scene or Scene(cfg, kin)
+    hemi = partition(cfg)
+    done = dict(layers or {})
+    for la in hemi.layers:
+        if la.name not in done:
+            if on_step:
+                on_step(f"reviewing layer {la.name}")
+            done[la.name] = evaluate_layer(cfg, la.name, travel, kin, scene)
+    feasible = [ev.schur for ev in done.values() if ev.feasible]
+    if not feasible:
+        raise ConfigError(cfg.source, "no layer of this plan is feasible: nothing to re-plan")
+    S = sum(feasible)
+    if directions is None:
+        lam, V = np.linalg.eigh(S)
+        directions = V[:, lam > max(float(lam.max()), 1e-300) * STRUCTURAL]
+    Vd = directions
+    values = _with_information(done, Vd)
+    return Review(values, judge(cfg, values, limits), done, Vd, _logdet(Vd, S))
+
+
+def _with_information(layers: dict[str, LayerEval], Vd: np.ndarray) -> dict[str, dict]:
+    """Every segment's values with its share of the test's information along ``Vd``
+    (its set-up-eliminated block over the whole test's) and that share per share of
+    the test's time."""
+    S = sum(ev.schur for ev in layers.values() if ev.feasible)
+    M_inv = np.linalg.pinv(Vd.T @ S @ Vd, hermitian=True)
+    total_s = sum(v.get("duration_s", 0.0) for ev in layers.values() for v in ev.values.values())
+    values: dict[str, dict] = {}
+    for ev in layers.values():
+        for sid, v in ev.values.items():
+            v = dict(v)
+            a = ev.segment_info.get(sid)
+            if a is not None and total_s > 0 and v.get("duration_s"):
+                share = float(np.trace(M_inv @ (Vd.T @ a @ Vd))) / max(Vd.shape[1], 1)
+                v["information_share"] = share
+                v["information_per_time"] = share / (v["duration_s"] / total_s)
+            values[sid] = v
+    return values
+
+
+def servo_median(values: dict[str, dict]) -> float:
+    servo = [v["servo_um_per_ms"] for v in values.values() if v.get("servo_um_per_ms")]
+    return float(np.median(servo)) if servo else 0.0
+
+
+def judge(cfg: Config, values: dict[str, dict], limits: Limits,
+          median: float | None = None) -> dict[str, list[Reason]]:
+    """Every reason that makes each segment bad (segments with none are left out);
+    ``median``: the servo sensitivity's yardstick (default: the median of ``values``)."""
+    median = servo_median(values) if median is None else median
+    out: dict[str, list[Reason]] = {}
+    for sid, v in values.items():
+        r = []
+        if not v.get("feasible", True):
+            r.append(Reason("infeasible", 1.0, 0.0, "", "; ".join(v.get("violations", []))[:200]))
+        lim = limits.clearance_factor * cfg.check.safety_clearance_mm
+        c = v.get("clearance_mm")
+        if c is not None and c < lim:
+            r.append(Reason("clearance", c, lim, "mm", f"clearance {c:.2f} mm < {lim:.2f} mm"))
+        for key, lim, unit in (("travel_margin_mm", limits.travel_margin_mm, "mm"),
+                               ("travel_margin_deg", limits.travel_margin_deg, "deg")):
+            m = v.get(key)
+            if m is not None and m < lim:
+                r.append(Reason("travel_margin", m, lim, unit,
+                                f"travel margin {m:.2f} {unit} < {lim:g} {unit}"))
+        sp = v.get("min_speed_ratio")
+        if sp is not None and sp < limits.speed_ratio:
+            r.append(Reason("speed_dip", sp, limits.speed_ratio, "of the feed",
+                            f"the curvature caps the speed at {sp:.0%} of the feed"))
+        ac = v.get("acceleration_ratio")
+        if ac is not None and ac > limits.acceleration_ratio:
+            r.append(Reason("acceleration", ac, limits.acceleration_ratio, "of the axis limit",
+                            f"an axis accelerates at {ac:.0%} of its limit"))
+        sv = v.get("servo_um_per_ms")
+        if sv is not None and median > 0 and sv > limits.servo_over_median * median:
+            r.append(Reason("servo_sensitivity", sv, limits.servo_over_median * median, "um per ms",
+                            f"a 1 ms axis lag moves the reading {sv:.2f} um RMS "
+                            f"({sv / median:.1f} x the plan's median)"))
+        if v.get("rotary_rate_warnings"):
+            n = v["rotary_rate_warnings"]
+            r.append(Reason("rotary_rate", float(n), 0.0, "warnings",
+                            f"a rotary axis would turn faster than its limit ({n} warning(s))"))
+        ip = v.get("information_per_time")
+        if ip is not None and ip < limits.information_per_time:
+            r.append(Reason("information", ip, limits.information_per_time, "of its time share",
+                            f"adds {ip:.2f} of its share of the test's time to the determined "
+                            f"combinations' information"))
+        if r:
+            out[sid] = r
+    return out
+
+
+#: information gains below this (nats) are a tie: 0.05 nats changes the geometric-mean
+#: standard uncertainty of k determined combinations by exp(-0.025 / k), 0.8 % for k = 3
+INFORMATION_TIE = 0.05
+
+#: the curves tried for a sector: amplitude x waves x projection
+AMPLITUDES = (1.0, 0.7, 0.4)
+WAVES = (1, 2)
+
+
+def sector_of(segment_id: str) -> str:
+    return segment_id.split("-", 1)[0]
+
+
+def with_overrides(cfg: Config, overrides: dict[str, SectorCurve]) -> Config:
+    """``cfg`` with these sectors' overrides in place of any it had for them: its text
+    gets the tables (a config written out reproduces the plan)."""
+    text = _drop_overrides(cfg.text, set(overrides))
+    for sector in sorted(overrides, key=lambda s: (s[0], int(s[1:]))):
+        o = overrides[sector]
+        lines = [f'\n[[test.curve.override]]  # re-planned by sdit-path replan', f'sector = "{sector}"']
+        if o.amplitude is not None:
+            lines.append(f"amplitude = {o.amplitude!r}")
+        if o.waves_per_sector is not None:
+            lines.append(f"waves_per_sector = {o.waves_per_sector}")
+        if o.projection is not None:
+            lines.append(f'projection = "{o.projection}"')
+        text = text.rstrip("\n") + "\n" + "\n".join(lines) + "\n"
+    return parse_config(text, cfg.source)
+
+
+def _drop_overrides(text: str, sectors: set[str]) -> str:
+    """The config text without the ``[[test.curve.override]]`` tables of ``sectors``."""
+    parts = re.split(r"(?m)^(?=\s*\[)", text)
+    keep = []
+    for p in parts:
+        if re.match(r"\s*\[\[\s*test\.curve\.override\s*\]\]", p):
+            body = p.split("\n", 1)[1] if "\n" in p else ""
+            try:
+                sector = tomllib.loads(body).get("sector")
+            except tomllib.TOMLDecodeError:
+                sector = None
+            if sector in sectors:
+                continue
+        keep.append(p)
+    return "".join(keep)
+
+
+def candidates_for(cfg: Config, sector: str) -> list[SectorCurve]:
+    now = cfg.test.curve.for_sector(sector[0], int(sector[1:]), cfg.test.projection)
+    out = []
+    for proj in dict.fromkeys((cfg.test.projection, "stereographic", "vertical")):
+        for amp in AMPLITUDES:
+            for waves in WAVES:
+                if (amp, waves, proj) == now:
+                    continue
+                out.append(SectorCurve(sector, amp, waves, proj))
+    return out
+
+
+def choose(cfg: Config, rev: Review, sector: str, reasons: list[Reason], travel: dict,
+           limits: Limits, kin: Kinematics, scene: Scene, on_step=None) -> list[Candidate]:
+    """Every candidate of ``sector`` evaluated and ranked (best first; the sector as
+    planned among them)."""
+    layer = sector[0]
+    base = rev.layers[layer]
+    S_rest = sum((ev.schur for name, ev in rev.layers.items() if name != layer and ev.feasible),
+                 np.zeros_like(base.schur) if base.feasible else 0.0)
+    kinds = {r.kind for r in reasons}
+    seg_ids = [sid for sid in base.values if sector_of(sid) == sector]
+    out = []
+    for curve in [None] + candidates_for(cfg, sector):
+        if on_step:
+            on_step(f"trying {sector}: {Candidate(sector, curve, base).label}")
+        if curve is None:
+            ev = base
+        else:
+            c2 = with_overrides(cfg, {**_current(cfg), sector: curve})
+            ev = evaluate_layer(c2, layer, travel, kin, scene)
+        cand = Candidate(sector, curve, ev)
+        if ev.feasible:
+            cand.information_nats = _logdet(rev.directions, S_rest + ev.schur)
+            whole = _with_information({**rev.layers, layer: ev}, rev.directions)
+            vals = {sid: whole[sid] for sid in seg_ids if sid in whole}
+            # judged against the plan's yardstick of servo sensitivity
+            still = judge(cfg, vals, limits, servo_median(rev.values))
+            left = {r.kind for rs in still.values() for r in rs}
+            cand.cleared = sorted(kinds - left)
+            cand.remaining = sorted(left)
+        out.append(cand)
+    out.sort(key=lambda c: (not c.evaluation.feasible, -len(c.cleared), len(c.remaining),
+                            -c.information_nats, c.evaluation.cycle_s, c.curve is not None))
+    # among the leaders (as feasible, clearing as much), information within
+    # INFORMATION_TIE of the best is a tie: the shorter layer wins, the sector as
+    # planned on equal time
+    lead = [c for c in out if (c.evaluation.feasible, c.cleared, c.remaining)
+            == (out[0].evaluation.feasible, out[0].cleared, out[0].remaining)]
+    if out[0].evaluation.feasible:
+        near = [c for c in lead if c.information_nats >= out[0].information_nats - INFORMATION_TIE]
+        # with nothing cleared, the sector stays as planned unless a curve brings more
+        # than a tie of information (a second saved is not worth a new curve)
+        planned = next((c for c in near if c.curve is None), None)
+        best = planned if planned is not None and not planned.cleared else \
+            min(near, key=lambda c: (round(c.evaluation.cycle_s, 1), c.curve is not None))
+        out.remove(best)
+        out.insert(0, best)
+    return out
+
+
+def _current(cfg: Config) -> dict[str, SectorCurve]:
+    return {o.sector: o for o in cfg.test.curve.overrides}
+
+
+@dataclass
+class Replan:
+    before: Review
+    after: Review
+    config: Config  # with the chosen overrides
+    chosen: dict[str, Candidate]  # sector -> the chosen curve
+    tried: dict[str, list[Candidate]]  # sector -> every candidate, best first
+    asked: list[str]  # segments named by the user (empty: found)
+
+
+def analysis_reasons(plan: PlanFiles, analysis: dict, source: str,
+                     factor: float = 2.0) -> dict[str, list[Reason]]:
+    """Segments where an analysis of recordings of this plan left a residual no effect
+    of the library explains: RMS over the segment above ``factor`` x the recording's
+    noise."""
+    recs = analysis.get("recordings") if isinstance(analysis, dict) else None
+    if not isinstance(recs, list) or not recs:
+        raise ConfigError(source, "expected the analysis.json written by sdit-path analyse "
+                                  "(no 'recordings')")
+    mine = [r for r in recs if isinstance(r, dict) and r.get("program") in plan.program_names]
+    if not mine:
+        raise ConfigError(source, f"none of its recordings is of a program of this plan "
+                                  f"({', '.join(plan.program_names)}): an analysis of another plan?")
+    out: dict[str, list[Reason]] = {}
+    for r in mine:
+        d = r.get("diagnosis") or {}
+        u = d.get("unexplained") or {}
+        noise = float(d.get("noise_um") or 0.0)
+        if not u.get("significant") or noise <= 0:
+            continue
+        for sid, rms in ((u.get("where") or {}).get("segment_rms_um") or {}).items():
+            if isinstance(rms, (int, float)) and rms > factor * noise and "-" in sid \
+                    and sid.split("-")[0][1:].isdigit():
+                out.setdefault(sid, []).append(Reason(
+                    "residual", float(rms), factor * noise, "um RMS",
+                    f"{r['program']}: {rms:.2f} um RMS left unexplained ({rms / noise:.1f} x the "
+                    f"recording's noise)"))
+    return out
+
+
+def replan(plan: PlanFiles, segments: list[str] | None = None, limits: Limits = Limits(),
+           on_step=None, measured: dict[str, list[Reason]] | None = None) -> Replan:
+    """The plan reviewed, the bad segments' sectors (or those of ``segments``)
+    re-planned, and the plan reviewed again with the chosen curves.  ``measured``: the
+    reasons an analysis of recordings gives (:func:`analysis_reasons`)."""
+    cfg = plan.config
+    known = [s.get("id") for s in plan.manifest.get("segments", []) if isinstance(s, dict)]
+    for sid in segments or []:
+        if sid not in known:
+            raise ConfigError("--segment", f"{sid[:40]!r} is not a segment of this plan "
+                                           f"(segments such as {known[0] if known else 'D3-2'})")
+    travel = plan.tested_travel()
+    kin = Kinematics(cfg.machine)
+    scene = Scene(cfg, kin)
+    before = review(cfg, travel, limits, on_step, kin, scene)
+    for sid, rs in (measured or {}).items():
+        if sid in before.values:
+            before.reasons.setdefault(sid, []).extend(rs)
+    bad = list(dict.fromkeys(segments)) if segments else sorted(before.reasons)
+    sectors: dict[str, list[Reason]] = {}
+    for sid in bad:
+        sectors.setdefault(sector_of(sid), []).extend(before.reasons.get(sid, []))
+    tried, chosen = {}, {}
+    for sector in sorted(sectors, key=lambda x: (x[0], int(x[1:]))):
+        ranked = choose(cfg, before, sector, sectors[sector], travel, limits, kin, scene, on_step)
+        tried[sector] = ranked
+        chosen[sector] = ranked[0]
+    changes = {s: c.curve for s, c in chosen.items() if c.curve is not None}
+    new_cfg = with_overrides(cfg, {**_current(cfg), **changes}) if changes else cfg
+    if on_step:
+        on_step("reviewing the re-planned plan")
+    keep = {name: ev for name, ev in before.layers.items()
+            if name not in {s[0] for s in changes}}
+    after = review(new_cfg, travel, limits, None, kin, Scene(new_cfg, kin), keep, before.directions)
+    return Replan(before, after, new_cfg, chosen, tried, list(segments or []))
+
+
+def report_json(r: Replan) -> dict:
+    def seg(rev: Review, sid: str) -> dict:
+        v = {k: x for k, x in rev.values.get(sid, {}).items() if k != "violations"}
+        return {"values": v, "reasons": [x.as_json() for x in rev.reasons.get(sid, [])]}
+
+    k = r.before.directions.shape[1]
+    gain = r.after.information_nats - r.before.information_nats
+    sectors = []
+    for sector, ranked in r.tried.items():
+        ids = sorted(sid for sid in r.before.values if sector_of(sid) == sector)
+        sectors.append({
+            "sector": sector,
+            "chosen": ranked[0].label,
+            "segments": {sid: {"before": seg(r.before, sid), "after": seg(r.after, sid)}
+                         for sid in ids},
+            "candidates": [{"curve": c.label, "feasible": c.evaluation.feasible,
+                            "infeasible_pieces": c.evaluation.infeasible,
+                            "cleared": c.cleared, "remaining": c.remaining,
+                            "information_nats": c.information_nats if c.evaluation.feasible else None,
+                            "layer_cycle_s": c.evaluation.cycle_s if c.evaluation.feasible else None}
+                           for c in ranked]})
+    return {
+        "objective": ("feasible; then the most of the sector's reasons cleared; then the "
+                      "largest log-determinant of the information of the combinations the "
+                      "test determines (nats); then the shorter layer"),
+        "determined_combinations": k,
+        "information_nats": {"before": r.before.information_nats, "after": r.after.information_nats,
+                             "gain": gain,
+                             "geometric_mean_std_factor": math.exp(-gain / (2 * k)) if k else 1.0},
+        "cycle_s": {"before": sum(ev.cycle_s for ev in r.before.layers.values() if ev.feasible),
+                    "after": sum(ev.cycle_s for ev in r.after.layers.values() if ev.feasible)},
+        "segments_named": r.asked,
+        "bad_segments_before": {sid: [x.as_json() for x in rs] for sid, rs in r.before.reasons.items()},
+        "bad_segments_after": {sid: [x.as_json() for x in rs] for sid, rs in r.after.reasons.items()},
+        "sectors": sectors,
+        "overrides": [{k2: v for k2, v in (("sector", o.sector), ("amplitude", o.amplitude),
+                                           ("waves_per_sector", o.waves_per_sector),
+                                           ("projection", o.projection)) if v is not None}
+                      for o in r.config.test.curve.overrides],
+    }
+
+
+def report_text(r: Replan) -> str:
+    j = report_json(r)
+    lines = []
+    nb = len(r.before.reasons)
+    if r.asked:
+        lines.append(f"Segments named: {', '.join(r.asked)}.")
+    lines.append(f"Bad segments as planned: {nb}" + ("." if nb else " (none: nothing to re-plan)."))
+    for sid, rs in r.before.reasons.items():
+        lines.append(f"  {sid}: " + "; ".join(x.text for x in rs))
+    for s in j["sectors"]:
+        lines.append("")
+        lines.append(f"SECTOR {s['sector']}: chosen {s['chosen']}")
+        lines.append(f"  {'segment':8} {'reasons before':44} reasons after")
+        for sid, ba in s["segments"].items():
+            b = ", ".join(x["kind"] for x in ba["before"]["reasons"]) or "-"
+            a = ", ".join(x["kind"] for x in ba["after"]["reasons"]) or "-"
+            lines.append(f"  {sid:8} {b:44} {a}")
+        lines.append("  candidates (best first): " + "; ".join(
+            f"{c['curve']}: " + ("infeasible" if not c["feasible"] else
+                                 f"cleared {'+'.join(c['cleared']) or 'nothing'}, "
+                                 f"information {c['information_nats']:.3f} nats, layer "
+                                 f"{c['layer_cycle_s']:.1f} s")
+            for c in s["candidates"][:6]) + (" ..." if len(s["candidates"]) > 6 else ""))
+    info = j["information_nats"]
+    lines.append("")
+    lines.append(f"WHOLE TEST: information of the {j['determined_combinations']} determined "
+                 f"combinations {info['before']:.3f} -> {info['after']:.3f} nats (their geometric-"
+                 f"mean standard uncertainty x {info['geometric_mean_std_factor']:.3f}); cycle "
+                 f"{j['cycle_s']['before']:.1f} -> {j['cycle_s']['after']:.1f} s; bad segments "
+                 f"{len(j['bad_segments_before'])} -> {len(j['bad_segments_after'])}.")
+    return "\n".join(lines) + "\n"

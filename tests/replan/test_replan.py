@@ -1,0 +1,109 @@
+"""Re-planning bad segments (issue 17): a sector made bad on purpose is found with the
+right reason, its variant clears it, and the re-planned plan is a plan like any other."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sdit_path.config import parse_config
+from sdit_path.planfiles import load_plan
+from sdit_path.replan import Limits, review, with_overrides
+
+GOLDEN = Path(__file__).resolve().parents[1] / "data" / "golden_small.toml"
+#: sector A2 with eight waves between its nodes: at F1000 the curvature caps the speed
+BAD = '\n[[test.curve.override]]\nsector = "A2"\nwaves_per_sector = 8\n'
+
+
+def cli(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "sdit_path", *args], capture_output=True, text=True)
+
+
+@pytest.fixture(scope="module")
+def bad_plan(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("replan")
+    (d / "bad.toml").write_text(GOLDEN.read_text() + BAD)
+    r = cli("plan", str(d / "bad.toml"), "--out", str(d / "plan"), "-q")
+    assert r.returncode == 0, r.stderr
+    return d
+
+
+def test_a_sector_made_bad_is_named_with_its_reason(bad_plan):
+    plan = load_plan(bad_plan / "plan")
+    rev = review(plan.config, plan.tested_travel())
+    dips = {sid for sid, rs in rev.reasons.items() if any(r.kind == "speed_dip" for r in rs)}
+    assert dips == {"A2-1", "A2-2"}
+    r = next(r for r in rev.reasons["A2-1"] if r.kind == "speed_dip")
+    assert r.value < Limits().speed_ratio and r.unit == "of the feed"
+    # the same plan without the override has no speed dip anywhere
+    clean = review(parse_config(GOLDEN.read_text(), str(GOLDEN)), plan.tested_travel())
+    assert not any(r.kind == "speed_dip" for rs in clean.reasons.values() for r in rs)
+
+
+def test_replan_clears_it_and_writes_a_plan(bad_plan, tmp_path):
+    out = tmp_path / "re"
+    r = cli("replan", "--plan", str(bad_plan / "plan"), "--segment", "A2-1", "--out", str(out), "-q")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((out / "replan.json").read_text())
+    (sector,) = rep["sectors"]
+    assert sector["sector"] == "A2" and sector["chosen"] != "as planned"
+    for sid in ("A2-1", "A2-2"):
+        before = [x["kind"] for x in sector["segments"][sid]["before"]["reasons"]]
+        after = sector["segments"][sid]["after"]
+        assert "speed_dip" in before
+        assert "speed_dip" not in [x["kind"] for x in after["reasons"]]
+        assert after["values"]["min_speed_ratio"] >= Limits().speed_ratio
+    # the re-planned plan is reproducible from its config and reads like any plan
+    new = load_plan(out)
+    (o,) = new.config.test.curve.overrides
+    assert o.sector == "A2" and o.waves_per_sector != 8
+    assert json.loads((out / "plan.json").read_text())["replan"]["sectors"][0]["sector"] == "A2"
+    again = cli("plan", str(out / "config.toml"), "--out", str(tmp_path / "again"), "-q")
+    assert again.returncode == 0, again.stderr
+    for prog in new.program_names:
+        a = (out / "linuxcnc" / f"{prog}.ngc").read_text()
+        assert a == (tmp_path / "again" / "linuxcnc" / f"{prog}.ngc").read_text()
+    # the curves stay on the sphere within the spline tolerance (the trajectory's ball)
+    h = new.manifest["sphere"]
+    tol_mm = new.config.post.spline_tolerance_um * 1e-3
+    for prog in new.program_names:
+        s = new.trajectory(prog)
+        r_mm = np.linalg.norm(s.ball_mm - np.array(h["centre_mm"]), axis=1)
+        assert np.abs(r_mm - h["radius_mm"]).max() <= tol_mm + 1e-6
+    # deterministic
+    r2 = cli("replan", "--plan", str(bad_plan / "plan"), "--segment", "A2-1", "--out",
+             str(tmp_path / "re2"), "-q")
+    assert r2.returncode == 0
+    for f in ("replan.json", "plan.json", "config.toml", "linuxcnc/GOLD_A.ngc"):
+        assert (out / f).read_bytes() == (tmp_path / "re2" / f).read_bytes()
+
+
+def test_replan_refuses_bad_requests_in_one_line(bad_plan, tmp_path):
+    r = cli("replan", "--plan", str(bad_plan / "plan"), "--segment", "Z9-9", "--out", str(tmp_path / "x"),
+            "-q")
+    assert r.returncode != 0 and "not a segment of this plan" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "x").exists()
+    bogus = tmp_path / "analysis.json"
+    bogus.write_text('{"recordings": [{"program": "OTHER_A"}]}')
+    r = cli("replan", "--plan", str(bad_plan / "plan"), "--analysis", str(bogus), "--out", str(tmp_path / "y"),
+            "-q")
+    assert r.returncode != 0 and "another plan" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    # the output folder may not be the plan itself
+    r = cli("replan", "--plan", str(bad_plan / "plan"), "--segment", "A2-1", "--out",
+            str(bad_plan / "plan"), "--force", "-q")
+    assert r.returncode != 0 and (bad_plan / "plan" / "plan.json").is_file()
+
+
+def test_overrides_replace_earlier_ones_for_the_same_sector(bad_plan):
+    from sdit_path.config import SectorCurve
+
+    cfg = load_plan(bad_plan / "plan").config
+    new = with_overrides(cfg, {"A2": SectorCurve("A2", 0.7, 1, "vertical")})
+    (o,) = new.test.curve.overrides
+    assert (o.amplitude, o.waves_per_sector, o.projection) == (0.7, 1, "vertical")
+    assert new.text.count("[[test.curve.override]]") == 1
