@@ -428,7 +428,7 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, quiet) -> 
     from .output import check_output, write_tree
     from .pipeline import plan, step_count
     from .planfiles import load_plan
-    from .replan import analysis_reasons, replan, report_json, report_text
+    from .replan import analysis_reasons, pictures, replan, report_json, report_text
     from .report.manifest import plan_directory_files
 
     try:
@@ -455,6 +455,8 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, quiet) -> 
             files["plan.json"] = json.dumps(manifest, indent=2, ensure_ascii=False) + "\n"
             files["replan.json"] = json.dumps(report, indent=2) + "\n"
             files["replan.txt"] = report_text(result)
+            for name, png in pictures(result).items():
+                files[f"pictures/{name}"] = png
             step("writing")
             write_tree(out_dir, files, force=force, command="replan", protect=protect)
     except SditError as exc:

@@ -607,3 +607,60 @@ def report_text(r: Replan) -> str:
                  f"{j['cycle_s']['before']:.1f} -> {j['cycle_s']['after']:.1f} s; bad segments "
                  f"{len(j['bad_segments_before'])} -> {len(j['bad_segments_after'])}.")
     return "\n".join(lines) + "\n"
+
+
+def pictures(r: Replan) -> dict[str, bytes]:
+    """Per re-planned layer, ``<layer>_replan.png``: the layer seen from above the pivot
+    (azimuth around, elevation outwards from the pole), the curves as planned in grey and
+    as re-planned in blue, each bad segment in red with its reasons."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = {}
+    layers = sorted({s[0] for s in r.tried})
+    for name in layers:
+        b, a = r.before.layers[name], r.after.layers[name]
+        fig, ax = plt.subplots(figsize=(7.5, 7.5))
+        for ev, style in ((b, dict(color="0.6", lw=1.0, label="as planned")),
+                          (a, dict(color="tab:blue", lw=1.2, label="re-planned"))):
+            if ev.samples is None:
+                continue
+            x, y = _polar_view(r.config, ev.samples)
+            moving = ev.samples.phase != "dwell"
+            ax.plot(np.where(moving, x, np.nan), np.where(moving, y, np.nan), **style)
+        if b.samples is not None:
+            x, y = _polar_view(r.config, b.samples)
+            for sid, rs in r.before.reasons.items():
+                if sector_of(sid)[0] != name:
+                    continue
+                m = b.samples.segment == sid
+                if not m.any():
+                    continue
+                ax.plot(np.where(m, x, np.nan), np.where(m, y, np.nan), color="tab:red", lw=2.0)
+                k = np.flatnonzero(m)[len(np.flatnonzero(m)) // 2]
+                ax.annotate(f"{sid}: " + ", ".join(x.kind for x in rs), (x[k], y[k]), fontsize=7,
+                            color="tab:red", xytext=(4, 4), textcoords="offset points")
+        ax.set_aspect("equal")
+        ax.set_title(f"layer {name}: curves as planned (grey) and re-planned (blue); bad "
+                     f"segments in red", fontsize=9)
+        ax.set_xlabel("90 deg - elevation, along the azimuth (deg)")
+        ax.legend(loc="upper right", fontsize=8)
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=100, metadata={"Software": None})
+        plt.close(fig)
+        out[f"{name}_replan.png"] = buf.getvalue()
+    return out
+
+
+def _polar_view(cfg: Config, s: Samples) -> tuple[np.ndarray, np.ndarray]:
+    """Ball positions seen from above the pivot: the distance from the pole in degrees
+    of elevation, along the azimuth."""
+    p = s.ball_mm - np.array(cfg.ballbar.pivot_mm)
+    r = np.linalg.norm(p, axis=1)
+    colat = 90.0 - np.degrees(np.arcsin(np.clip(p[:, 2] / r, -1, 1)))
+    az = np.arctan2(p[:, 1], p[:, 0])
+    return colat * np.cos(az), colat * np.sin(az)

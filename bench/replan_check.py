@@ -1,0 +1,119 @@
+"""Simulated end to end check of ``sdit-path replan`` (issue 17): a plan with a sector
+made bad on purpose (``golden_small`` with eight waves in sector A2 at F1000, where the
+curvature caps the speed) and its re-planned version are recorded by ``perturb`` with the
+same hidden geometry (linear order 1 + squareness, random per trial), the same servo
+mismatch and set-up, and identified (``identify``, geometry only: what a user without a
+dynamics model gets).  Printed per plan over the seeded trials: how far the determined
+combinations are from the truth in their own standard uncertainties and in their units,
+and how large those uncertainties are.
+
+    python bench/replan_check.py [--trials 6] [--seed 1] [--work DIR] [--mismatch-ms 1.0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from analyse_blind import geometry  # noqa: E402
+
+BAD = '\n[[test.curve.override]]\nsector = "A2"\nwaves_per_sector = 8\n'
+
+
+def cli(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "sdit_path", *args], capture_output=True, text=True)
+
+
+def must(r: subprocess.CompletedProcess) -> None:
+    if r.returncode:
+        sys.exit(r.stderr.strip()[-500:])
+
+
+def trial(k: int, seed: int, plans: dict, work: Path, mismatch_ms: float) -> dict:
+    rng = np.random.default_rng([seed, k, 17])
+    d = work / f"trial{k}"
+    d.mkdir(parents=True, exist_ok=True)
+    truth = geometry(rng)
+    (d / "hidden.toml").write_text(
+        'name = "hidden"\n\n[model]\nlinear_order = 1\nsquareness = true\n\n[values]\n'
+        + "\n".join(f'"{n}" = {v:.5f}' for n, v in truth.items()) + "\n")
+    setup = (f"setup_offset:dx_um={rng.normal(0, 8):.3f},dy_um={rng.normal(0, 8):.3f},"
+             f"dz_um={rng.normal(0, 8):.3f}")
+    inst = {p: (rng.uniform(1, 15), rng.uniform(-120, 120), rng.uniform(0.1, 0.3))
+            for p in ("GOLD_A", "GOLD_B")}
+    out = {}
+    for which, plan in plans.items():
+        args = ["identify", "--plan", str(plan), "--json", str(d / f"{which}.json")]
+        for prog, (lead, ppm, noise) in inst.items():
+            f = d / f"{which}_{prog}.csv"
+            must(cli("perturb", "--plan", str(plan), "--program", prog, "--model",
+                     str(d / "hidden.toml"), "--effect", setup, "--effect",
+                     f"servo_mismatch:axis=X,extra_lag_ms={mismatch_ms}",
+                     "--lead-s", f"{lead:.3f}", "--clock-ppm", f"{ppm:.2f}",
+                     "--noise-um", f"{noise:.3f}", "--out", str(f), "-q"))
+            args += ["--trace", str(f), "--program", prog]
+        must(cli(*args))
+        rep = json.loads((d / f"{which}.json").read_text())
+        errs, zs, stds = [], [], []
+        for c in rep["combinations"]:
+            value = sum(t["coefficient"] * truth.get(t["parameter"], 0.0) for t in c["terms"])
+            errs.append(abs(c["estimate"] - value))
+            zs.append(errs[-1] / c["std"])
+            stds.append(c["std"])
+        out[which] = {"combinations": len(zs), "z": zs, "err": errs, "std": stds,
+                      "noise_um": rep["noise_std_um"]}
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=6)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--work")
+    ap.add_argument("--mismatch-ms", type=float, default=1.0)
+    a = ap.parse_args()
+    work = Path(a.work or tempfile.mkdtemp(prefix="replan-check-"))
+    work.mkdir(parents=True, exist_ok=True)
+    cfg = work / "bad.toml"
+    cfg.write_text((HERE.parent / "tests/data/golden_small.toml").read_text() + BAD)
+    plans = {"as planned": work / "plan", "re-planned": work / "replanned"}
+    if not (work / "plan" / "plan.json").is_file():
+        must(cli("plan", str(cfg), "--out", str(work / "plan"), "-q"))
+    if not (work / "replanned" / "plan.json").is_file():
+        must(cli("replan", "--plan", str(work / "plan"), "--segment", "A2-1", "--out",
+                 str(work / "replanned"), "-q"))
+    rep = json.loads((work / "replanned" / "replan.json").read_text())
+    print(f"sector A2: {rep['sectors'][0]['chosen']}; information "
+          f"{rep['information_nats']['before']:.3f} -> {rep['information_nats']['after']:.3f} nats; "
+          f"cycle {rep['cycle_s']['before']:.1f} -> {rep['cycle_s']['after']:.1f} s")
+    rows = {w: {"z": [], "err": [], "std": [], "rank": []} for w in plans}
+    for k in range(a.trials):
+        res = trial(k, a.seed, plans, work, a.mismatch_ms)
+        line = []
+        for w, r in res.items():
+            for key in ("z", "err", "std"):
+                rows[w][key] += r[key]
+            rows[w]["rank"].append(r["combinations"])
+            line.append(f"{w}: {r['combinations']} combos, max z {max(r['z'], default=0):.2f}, "
+                        f"RMS error {np.sqrt(np.mean(np.square(r['err']))):.4f}, "
+                        f"noise {r['noise_um']:.3f} um")
+        print(f"trial {k}: " + " | ".join(line), flush=True)
+    print(f"\n{a.trials} trials, servo mismatch of X {a.mismatch_ms} ms in every recording:")
+    for w, r in rows.items():
+        z = np.array(r["z"])
+        print(f"  {w:11}: combinations per trial {sorted(set(r['rank']))}; error / std: median "
+              f"{np.median(z):.2f}, max {z.max():.2f}, within 3 std {int((z <= 3).sum())}/{len(z)}; "
+              f"median error {np.median(r['err']):.4f}; median std {np.median(r['std']):.4f}")
+
+
+if __name__ == "__main__":
+    main()
