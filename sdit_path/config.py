@@ -184,6 +184,12 @@ class TestConfig:
     projection: str
     curve: CurveConfig
     rotary: RotaryConfig
+    #: sectors (``D3``) that get a short re-measure program of their layer
+    #: (``[test.remeasure] sectors``; written by ``replan`` for the sectors it changed)
+    remeasure: tuple[str, ...] = ()
+
+    def remeasure_sectors(self, layer: str) -> tuple[int, ...]:
+        return tuple(int(s[1:]) for s in self.remeasure if s[0] == layer)
 
 
 @dataclass(frozen=True, slots=True)
@@ -583,7 +589,7 @@ def _ballbar(r: _Reader, root: dict, machine: MachineConfig) -> BallbarConfig:
 def _test(r: _Reader, root: dict, machine: MachineConfig) -> TestConfig:
     t = r.table(root, "test", ("track_elevations_deg", "nodes_per_track", "subsegments_per_sector",
                                "dwell_s", "feed_mm_per_min", "passes", "transit", "projection",
-                               "curve", "rotary"))
+                               "curve", "rotary", "remeasure"))
     elev = r.numbers(t, "test.track_elevations_deg", (0.0, 18.0, 36.0, 54.0, 72.0), unit="deg")
     if len(elev) > 25:
         raise r.fail("test.track_elevations_deg", f"expected at most 25 tracks, got {len(elev)}")
@@ -637,7 +643,32 @@ def _test(r: _Reader, root: dict, machine: MachineConfig) -> TestConfig:
                       curve=CurveConfig(amplitude=amplitude, waves_per_sector=waves,
                                         cap_elevation_deg=cap,
                                         overrides=_overrides(r, c, len(elev), nodes)),
-                      rotary=_rotary(r, t, machine))
+                      rotary=_rotary(r, t, machine),
+                      remeasure=_remeasure(r, t, len(elev), nodes))
+
+
+def _sector_name(r: _Reader, key: str, sector, tracks: int, nodes: int) -> str:
+    letters = "ABCDEFGHIJKLMNOPQRSTUVWXY"[:tracks]
+    ok = (isinstance(sector, str) and len(sector) >= 2 and sector[0] in letters
+          and sector[1:].isdigit() and 1 <= int(sector[1:]) <= nodes
+          and str(int(sector[1:])) == sector[1:])
+    if not ok:
+        raise r.fail(key, f"expected a layer letter ({letters[0]}-{letters[-1]}) and a sector "
+                          f"number 1-{nodes}, such as {letters[-1]}{min(3, nodes)}, got "
+                          f"{_short(sector) if isinstance(sector, str) else _describe(sector)}")
+    return sector
+
+
+def _remeasure(r: _Reader, t: dict, tracks: int, nodes: int) -> tuple[str, ...]:
+    m = r.table(t, "test.remeasure", ("sectors",), required=False)
+    raw = m.get("sectors", [])
+    if not isinstance(raw, list):
+        raise r.fail("test.remeasure.sectors", f"expected a list of sectors such as [\"D3\"], "
+                                               f"got {_describe(raw)}")
+    out = [_sector_name(r, "test.remeasure.sectors", s, tracks, nodes) for s in raw]
+    if len(set(out)) != len(out):
+        raise r.fail("test.remeasure.sectors", f"expected each sector at most once, got {out}")
+    return tuple(sorted(out, key=lambda x: (x[0], int(x[1:]))))
 
 
 def _overrides(r: _Reader, c: dict, tracks: int, nodes: int) -> tuple[SectorCurve, ...]:

@@ -168,6 +168,16 @@ def plan(config: Config, on_step: Callable[[str], None] | None = None,
         layers.append(LayerPlan(path, poses, checks))
         if on_step:
             on_step(f"layer {layer.name} planned and checked")
+    for layer in hemi.layers:
+        sectors = config.test.remeasure_sectors(layer.name)
+        if not sectors:
+            continue
+        path = builder.remeasure_path(layer, sectors)
+        poses, checks = check_layer(path, config, kin, scene)
+        bad += [(path.layer, c) for c in checks if not c.feasible]
+        layers.append(LayerPlan(path, poses, checks))
+        if on_step:
+            on_step(f"re-measure program of layer {layer.name} planned and checked")
     if bad:
         raise _infeasible_message(bad)
     timer = Timer(config, kin)
@@ -189,7 +199,8 @@ def step_count(config: Config) -> int:
     per_layer = 1 + len(config.post.controllers)
     if config.timing.export_trajectories:
         per_layer += 1
-    return len(config.test.track_elevations_deg) * per_layer
+    remeasure = len({s[0] for s in config.test.remeasure})
+    return (len(config.test.track_elevations_deg) + remeasure) * per_layer
 
 
 def trajectory_files(result: PlanResult, on_step: Callable[[str], None] | None = None

@@ -358,10 +358,17 @@ def sector_of(segment_id: str) -> str:
     return segment_id.split("-", 1)[0]
 
 
-def with_overrides(cfg: Config, overrides: dict[str, SectorCurve]) -> Config:
-    """``cfg`` with these sectors' overrides in place of any it had for them: its text
-    gets the tables (a config written out reproduces the plan)."""
+def with_overrides(cfg: Config, overrides: dict[str, SectorCurve],
+                   remeasure: tuple[str, ...] | None = None) -> Config:
+    """``cfg`` with these sectors' overrides in place of any it had for them, and with
+    ``remeasure`` (when given) as its re-measure sectors: its text gets the tables (a
+    config written out reproduces the plan, the re-measure programs included)."""
     text = _drop_overrides(cfg.text, set(overrides))
+    if remeasure is not None:
+        text = _drop_table(text, "test.remeasure")
+        if remeasure:
+            text = (text.rstrip("\n") + "\n\n[test.remeasure]  # written by sdit-path replan\n"
+                    + "sectors = [" + ", ".join(f'"{x}"' for x in remeasure) + "]\n")
     for sector in sorted(overrides, key=lambda s: (s[0], int(s[1:]))):
         o = overrides[sector]
         lines = [f'\n[[test.curve.override]]  # re-planned by sdit-path replan', f'sector = "{sector}"']
@@ -390,6 +397,13 @@ def _drop_overrides(text: str, sectors: set[str]) -> str:
                 continue
         keep.append(p)
     return "".join(keep)
+
+
+def _drop_table(text: str, name: str) -> str:
+    """The config text without the table ``[name]`` (header to the next header)."""
+    parts = re.split(r"(?m)^(?=\s*\[)", text)
+    pattern = re.compile(r"\s*\[\s*" + re.escape(name) + r"\s*\]")
+    return "".join(p for p in parts if not pattern.match(p))
 
 
 def candidates_for(cfg: Config, sector: str) -> list[SectorCurve]:
@@ -525,7 +539,10 @@ def replan(plan: PlanFiles, segments: list[str] | None = None, limits: Limits = 
         tried[sector] = ranked
         chosen[sector] = ranked[0]
     changes = {s: c.curve for s, c in chosen.items() if c.curve is not None}
-    new_cfg = with_overrides(cfg, {**_current(cfg), **changes}) if changes else cfg
+    # the sectors whose curves changed get a re-measure program of their layer
+    new_cfg = with_overrides(cfg, {**_current(cfg), **changes},
+                             tuple(sorted(changes, key=lambda x: (x[0], int(x[1:]))))) \
+        if changes else cfg
     if on_step:
         on_step("reviewing the re-planned plan")
     keep = {name: ev for name, ev in before.layers.items()

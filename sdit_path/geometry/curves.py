@@ -128,6 +128,26 @@ class MeridianCurve:
             [ce * math.cos(self.azimuth_rad), ce * math.sin(self.azimuth_rad), np.sin(e)], axis=-1)
 
 
+@dataclass(frozen=True, slots=True)
+class TrackCurve:
+    """Arc along a track (a circle of constant elevation) between two azimuths: how a
+    re-measure program goes from one node of a track to another without taking the bar
+    off (the identification curves leave and reach every node along it)."""
+
+    centre_mm: np.ndarray
+    radius_mm: float
+    elevation_rad: float
+    azimuth_start_rad: float
+    azimuth_end_rad: float
+
+    def __call__(self, t: np.ndarray) -> np.ndarray:
+        a = self.azimuth_start_rad + np.asarray(t, dtype=float) * (
+            self.azimuth_end_rad - self.azimuth_start_rad)
+        ce = math.cos(self.elevation_rad)
+        return self.centre_mm + self.radius_mm * np.stack(
+            [ce * np.cos(a), ce * np.sin(a), np.full_like(a, math.sin(self.elevation_rad))], axis=-1)
+
+
 def curve_length(curve, samples: int = 4001) -> float:
     """Arc length (mm) by dense chords; relative error ~1e-8 for these smooth curves."""
     p = curve(np.linspace(0.0, 1.0, samples))

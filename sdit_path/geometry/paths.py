@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import Config
-from .curves import MeridianCurve, WaveCurve
+from .curves import MeridianCurve, TrackCurve, WaveCurve
 from .hemisphere import TOP, Hemisphere, Layer
 from .nurbs import BSplineCurve, FittedRun, fit_run
 
@@ -94,13 +94,26 @@ class Remount:
     skipped: tuple[str, ...]
 
 
+#: the suffix of a re-measure program's layer name (``D_R``: re-planned sectors of D)
+REMEASURE = "_R"
+
+
 @dataclass(frozen=True, slots=True)
 class LayerPath:
-    layer: str
+    layer: str  # the layer's name, or with REMEASURE for a re-measure program
     start_node: str
     start_mm: np.ndarray
     items: tuple[Run | Dwell | Remount, ...]
     omitted: tuple[str, ...] = ()
+
+    @property
+    def base_layer(self) -> str:
+        """The layer of the hemisphere this path runs on."""
+        return self.layer.removesuffix(REMEASURE)
+
+    @property
+    def remeasure(self) -> bool:
+        return self.layer != self.base_layer
 
     @property
     def runs(self) -> tuple[Run, ...]:
@@ -205,6 +218,60 @@ class PathBuilder:
         z_safe = c[2] + r + 2 * standoff_mm
         via = np.array([out_a, [out_a[0], out_a[1], z_safe], [out_b[0], out_b[1], z_safe], out_b])
         return Remount(np.array(a), via, np.array(b), skipped)
+
+    def track_run(self, start_node: str, end_node: str) -> Run:
+        """Transit along the track of two of its nodes, the shorter way round."""
+        h = self.hemi
+        a, b = h.node(start_node), h.node(end_node)
+        d = (b.azimuth_rad - a.azimuth_rad + math.pi) % (2 * math.pi) - math.pi
+        if abs(abs(d) - math.pi) < 1e-12:
+            d = abs(d)  # half way round: counter-clockwise
+        curve = TrackCurve(h.centre_mm, h.radius_mm, a.elevation_rad, a.azimuth_rad,
+                           a.azimuth_rad + d)
+        label = f"{start_node}>{end_node}"
+        return self._fit([curve], start_node, end_node, [label], ["transit"], "transit",
+                         f"transit {label}")
+
+    def remeasure_path(self, layer: Layer, sectors: tuple[int, ...]) -> LayerPath:
+        """A short program that runs only ``sectors`` of ``layer`` (with the test's
+        passes and their static nodes), starting and ending where the layer program
+        does: up the meridian from the first track's node 1 (with a meridian transit),
+        along the layer's lower track to each sector and back, and down again."""
+        h, t = self.hemi, self.config.test
+        n = h.nodes_per_track
+        items: list[Run | Dwell | Remount] = []
+        at = [""]
+
+        def stop(node_id: str) -> None:
+            items.append(Dwell(node_id, h.node(node_id).position_mm, t.dwell_s))
+            at[0] = node_id
+
+        def add(run: Run) -> None:
+            items.append(run)
+            stop(run.end_node)
+
+        def go(node_id: str) -> None:
+            if at[0] != node_id:
+                add(self.track_run(at[0], node_id))
+
+        first = f"{layer.lower_track}-1"
+        names = [tr.name for tr in h.tracks]
+        climb = names[: names.index(layer.lower_track) + 1] if t.transit == "meridian" else [layer.lower_track]
+        stop(f"{climb[0]}-1")
+        for a, b in zip(climb, climb[1:]):
+            add(self.meridian_run(f"{a}-1", f"{b}-1"))
+        for sector in sorted(set(sectors)):
+            run = self.sector_run(layer, sector)
+            for p in t.passes:
+                r = run if p == "forward" else run.reversed("reverse")
+                go(r.start_node)
+                add(r)
+        go(first)
+        for a, b in zip(climb[::-1], climb[::-1][1:]):
+            add(self.meridian_run(f"{a}-1", f"{b}-1"))
+        start = f"{climb[0]}-1"
+        return LayerPath(layer.name + REMEASURE, start, np.array(h.node(start).position_mm),
+                         tuple(items))
 
     # -- layer paths ----------------------------------------------------------------------
 

@@ -107,3 +107,45 @@ def test_overrides_replace_earlier_ones_for_the_same_sector(bad_plan):
     (o,) = new.test.curve.overrides
     assert (o.amplitude, o.waves_per_sector, o.projection) == (0.7, 1, "vertical")
     assert new.text.count("[[test.curve.override]]") == 1
+
+
+def test_remeasure_program_runs_only_the_replanned_sector_from_and_back_to_a1(bad_plan, tmp_path):
+    """The short program per affected layer: from A-1 along the track to the sector's
+    node, the sector forward and back, and home; the same lint, on-sphere read-back and
+    LinuxCNC interpreter checks as every program."""
+    from conftest import have_linuxcnc
+    from sdit_path.nc.chords import chord_deviation
+    from sdit_path.nc.readback import read_sinumerik
+
+    out = tmp_path / "re"
+    r = cli("replan", "--plan", str(bad_plan / "plan"), "--segment", "A2-2", "--out", str(out), "-q")
+    assert r.returncode == 0, r.stderr
+    new = load_plan(out)
+    assert new.config.test.remeasure == ("A2",)
+    entry = next(p for p in new.manifest["programs"]
+                 if p["name"] == "GOLD_A_R" and p["controller"] == "linuxcnc")
+    assert entry["segment_order"] == ["A2-1", "A2-2", "A2-2", "A2-1"]
+    assert entry["dwell_nodes"] == ["A-1", "A-2", "A-3", "A-2", "A-1"]
+    centre = np.array(new.manifest["sphere"]["centre_mm"])
+    radius = new.manifest["sphere"]["radius_mm"]
+    nodes = {n["id"]: np.array(n["position_mm"]) for n in new.manifest["nodes"]}
+    read = read_sinumerik((out / "sinumerik840d" / "GOLD_A_R.MPF").read_text())
+    spline_tol = new.config.post.spline_tolerance_um * 1e-3
+    for curve in read.splines:
+        u = np.linspace(*curve.domain, 40 * len(curve.control_points_mm))
+        assert np.abs(np.linalg.norm(curve.evaluate(u) - centre, axis=1) - radius).max() <= spline_tol
+    assert [s for _, s, _ in read.dwells] == [2.0] * 5
+    for (_, _, xyz), node in zip(read.dwells, entry["dwell_nodes"]):
+        assert np.abs(np.array(xyz) - nodes[node]).max() < 1e-6
+    if have_linuxcnc():
+        from linuxcnc_oracle import interpret, ok
+
+        result, message, rec = interpret(str(out / "linuxcnc" / "GOLD_A_R.ngc"))
+        assert ok(result), message
+        p = np.array([x[1:4] for x in rec.feeds])
+        tol = new.config.post.chord_tolerance_um * 1e-3
+        assert np.abs(np.linalg.norm(p - centre, axis=1) - radius).max() <= tol
+        assert chord_deviation(p[:-1], p[1:], centre, radius).max() <= tol
+        assert [s for _, s in rec.dwells] == [2.0] * 5
+    # its trajectory is there for simulation and analysis like any program's
+    assert len(new.trajectory("GOLD_A_R").t_s) > 1000
