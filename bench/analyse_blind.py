@@ -57,6 +57,12 @@ def geometry(rng) -> dict:
     return values
 
 
+def hidden_model(truth: dict) -> str:
+    """The error-set TOML of a hidden geometry (linear order 1 + squareness)."""
+    return ('name = "hidden"\n\n[model]\nlinear_order = 1\nsquareness = true\n\n[values]\n'
+            + "\n".join(f'"{n}" = {v:.5f}' for n, v in truth.items()) + "\n")
+
+
 def effect_text(h) -> str:
     return h.name + ":" + ",".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}"
                                    for k, v in h.params.items())
@@ -68,9 +74,7 @@ def run_case(k: int, seed: int, plan_dir: Path, work: Path) -> dict:
     d = work / f"case{k}"
     d.mkdir(parents=True, exist_ok=True)
     truth = geometry(rng)
-    (d / "hidden.toml").write_text(
-        'name = "hidden"\n\n[model]\nlinear_order = 1\nsquareness = true\n\n[values]\n'
-        + "\n".join(f'"{n}" = {v:.5f}' for n, v in truth.items()) + "\n")
+    (d / "hidden.toml").write_text(hidden_model(truth))
     name = EFFECTS[k % len(EFFECTS)]
     ctx = build_context(plan, plan.program_names[0])
     hidden = [draw_effect(name, rng, ctx)] if name else []

@@ -24,7 +24,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from analyse_blind import geometry  # noqa: E402
+from analyse_blind import geometry, hidden_model  # noqa: E402
 
 BAD = '\n[[test.curve.override]]\nsector = "A2"\nwaves_per_sector = 8\n'
 
@@ -43,9 +43,7 @@ def trial(k: int, seed: int, plans: dict, work: Path, mismatch_ms: float) -> dic
     d = work / f"trial{k}"
     d.mkdir(parents=True, exist_ok=True)
     truth = geometry(rng)
-    (d / "hidden.toml").write_text(
-        'name = "hidden"\n\n[model]\nlinear_order = 1\nsquareness = true\n\n[values]\n'
-        + "\n".join(f'"{n}" = {v:.5f}' for n, v in truth.items()) + "\n")
+    (d / "hidden.toml").write_text(hidden_model(truth))
     setup = (f"setup_offset:dx_um={rng.normal(0, 8):.3f},dy_um={rng.normal(0, 8):.3f},"
              f"dz_um={rng.normal(0, 8):.3f}")
     inst = {p: (rng.uniform(1, 15), rng.uniform(-120, 120), rng.uniform(0.1, 0.3))
