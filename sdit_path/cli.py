@@ -447,7 +447,10 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, quiet) -> 
         with _Steps(quiet, None, "reviewing the plan") as step:
             result = replan(old, list(segments) or None, on_step=step.note, measured=measured)
             step("planning with the chosen curves")
-            planned = plan(result.config, on_step=step.note)
+            # segments the plan left out as infeasible (--skip-infeasible) stay out
+            # when no curve made them feasible
+            skip = any(s.get("status") == "omitted" for s in old.manifest.get("segments", []))
+            planned = plan(result.config, on_step=step.note, skip_infeasible=skip)
             files = plan_directory_files(planned, on_step=step.note)
             report = report_json(result)
             manifest = json.loads(files["plan.json"])

@@ -122,10 +122,13 @@ def _model(cfg: Config, travel: dict) -> tuple:
 
 def evaluate_layer(cfg: Config, layer_name: str, travel: dict, kin: Kinematics,
                    scene: Scene) -> LayerEval:
-    """Plan, check and time one layer of ``cfg``; its per-segment values and design."""
+    """Plan, check and time one layer of ``cfg``; its per-segment values and design.  As
+    ``plan --skip-infeasible`` does, infeasible pieces are left out (``infeasible``)
+    and the layer planned without them; ``feasible`` says whether that worked."""
     hemi = partition(cfg)
     layer = next(la for la in hemi.layers if la.name == layer_name)
-    path = PathBuilder(cfg, hemi).layer_path(layer)
+    builder = PathBuilder(cfg, hemi)
+    path = builder.layer_path(layer)
     _, checks = check_layer(path, cfg, kin, scene)
     bad = [c.piece_id for c in checks if not c.feasible]
     values: dict[str, dict] = {}
@@ -137,14 +140,19 @@ def evaluate_layer(cfg: Config, layer_name: str, travel: dict, kin: Kinematics,
             "rotary_rate_warnings": len(c.warnings),
             "feasible": c.feasible,
             "violations": [v.describe() for v in c.violations]}
-    if bad or not path.items:
+    if bad:
+        path = builder.layer_path(layer, frozenset(bad))
+        _, rechecked = check_layer(path, cfg, kin, scene)
+        if any(not c.feasible for c in rechecked):
+            path = None
+    if path is None or not path.items:
         return LayerEval(layer_name, False, bad, math.inf, values, {}, np.zeros((0, 0)))
     timer = Timer(cfg, kin)
     timed = timer.time_layer(path)
     s = sample(timed, timer, cfg.timing.sample_rate_hz)
     _motion_values(cfg, kin, s, values)
     info, S = _design(cfg, s, travel, layer_name)
-    return LayerEval(layer_name, True, [], float(timed.duration_s), values, info, S, s)
+    return LayerEval(layer_name, True, bad, float(timed.duration_s), values, info, S, s)
 
 
 def _motion_values(cfg: Config, kin: Kinematics, s: Samples, values: dict) -> None:
@@ -174,13 +182,15 @@ def _motion_values(cfg: Config, kin: Kinematics, s: Samples, values: dict) -> No
         else:
             margins.append((lo, hi, ax.is_rotary))
     labels = s.segment
-    moving = s.phase != "dwell"
+    # on the curve (not dwelling, not repositioning around a piece left out)
+    moving = np.isin(s.phase, ("accelerate", "cruise", "decelerate"))
     # a speed dip is read away from the stops: beyond the time the slowest axis needs to
     # reach the feed and to settle its acceleration
     a_min = min(ax.max_acceleration for ax in kin.axes if not ax.is_rotary)
     j_min = min(ax.max_jerk for ax in kin.axes if not ax.is_rotary)
     ramp_s = 2.0 * (feed / a_min + a_min / j_min)
     stopped = ~moving | (s.speed_mm_per_s < 1e-3 * feed)
+    stopped[[0, -1]] = True  # the program starts and ends at rest
     t_stop = s.t_s[stopped]
     if len(t_stop):
         k = np.clip(np.searchsorted(t_stop, s.t_s), 1, len(t_stop))
@@ -307,7 +317,8 @@ def judge(cfg: Config, values: dict[str, dict], limits: Limits,
     for sid, v in values.items():
         r = []
         if not v.get("feasible", True):
-            r.append(Reason("infeasible", 1.0, 0.0, "", "; ".join(v.get("violations", []))[:200]))
+            r.append(Reason("infeasible", 1.0, 0.0, "",
+                            "infeasible: " + "; ".join(v.get("violations", []))[:200]))
         lim = limits.clearance_factor * cfg.check.safety_clearance_mm
         c = v.get("clearance_mm")
         if c is not None and c < lim:
@@ -479,6 +490,73 @@ class Replan:
     chosen: dict[str, Candidate]  # sector -> the chosen curve
     tried: dict[str, list[Candidate]]  # sector -> every candidate, best first
     asked: list[str]  # segments named by the user (empty: found)
+    setup: dict[str, list[dict]] = field(default_factory=dict)  # layer -> set-up changes tried
+
+
+#: set-up changes tried for a layer whose infeasible segments no curve in their patch
+#: makes feasible (each planned: the layer's lower track raised, the pivot raised, a
+#: longer tool)
+TRACK_RAISE_DEG = (2.0, 5.0, 10.0)
+PIVOT_RAISE_MM = (20.0, 50.0)
+TOOL_LONGER_MM = (20.0, 50.0)
+
+
+def _edit(text: str, section: str, key: str, value: str) -> str | None:
+    """``text`` with ``key = value`` in ``[section]`` (None if the key is not there)."""
+    m = re.search(r"(?m)^\[" + re.escape(section) + r"\]\s*$", text)
+    if m is None:
+        return None
+    nxt = re.search(r"(?m)^\s*\[", text[m.end():])
+    end = m.end() + (nxt.start() if nxt else len(text) - m.end())
+    block, n = re.subn(r"(?m)^" + re.escape(key) + r"\s*=.*$", f"{key} = {value}",
+                       text[m.end():end], count=1)
+    return text[:m.end()] + block + text[end:] if n else None
+
+
+def setup_changes(cfg: Config, layer: str, segments: list[str], travel: dict,
+                  on_step=None) -> list[dict]:
+    """Which set-up change makes ``segments`` of ``layer`` feasible, each found by
+    planning the layer with it: its lower track raised, the pivot raised, a longer tool."""
+    t = cfg.test
+    names = "ABCDEFGHIJKLMNOPQRSTUVWXY"
+    i = names.index(layer)
+    elev = list(t.track_elevations_deg)
+    trials = []
+    for d in TRACK_RAISE_DEG:
+        e = elev[:i] + [elev[i] + d] + elev[i + 1:]
+        if all(b > a for a, b in zip(e, e[1:])) and e[-1] < 90:
+            trials.append((f"track {layer} at {e[i]:g} deg instead of {elev[i]:g}",
+                           "test", "track_elevations_deg", "[" + ", ".join(f"{x:g}" for x in e) + "]"))
+    px, py, pz = cfg.ballbar.pivot_mm
+    for d in PIVOT_RAISE_MM:
+        trials.append((f"pivot {d:g} mm higher (Z {pz + d:g})", "ballbar", "pivot_mm",
+                       f"[{px!r}, {py!r}, {pz + d!r}]"))
+    for d in TOOL_LONGER_MM:
+        trials.append((f"tool {d:g} mm longer ({cfg.machine.tool_length_mm + d:g} mm)", "machine",
+                       "tool_length_mm", repr(cfg.machine.tool_length_mm + d)))
+    out = []
+    for label, section, key, value in trials:
+        text = _edit(cfg.text, section, key, value)
+        if text is None:
+            out.append({"change": label, "planned": False, "why": f"{section}.{key} is not in the config"})
+            continue
+        if on_step:
+            on_step(f"trying a set-up change for layer {layer}: {label}")
+        try:
+            c2 = parse_config(text, cfg.source)
+            kin = Kinematics(c2.machine)
+            ev = evaluate_layer(c2, layer, travel, kin, Scene(c2, kin))
+        except (ConfigError, ValueError) as exc:
+            out.append({"change": label, "planned": False, "why": str(exc)[:200]})
+            continue
+        still = [sid for sid in segments if not ev.values.get(sid, {}).get("feasible", False)]
+        clear = [ev.values[sid]["clearance_mm"] for sid in segments
+                 if ev.values.get(sid, {}).get("clearance_mm") is not None]
+        out.append({"change": label, "planned": True, "config": f"[{section}] {key} = {value}",
+                    "feasible": not still, "still_infeasible": still,
+                    "layer_feasible": ev.feasible,
+                    "min_clearance_mm": min(clear) if clear else None})
+    return out
 
 
 def analysis_reasons(plan: PlanFiles, analysis: dict, source: str,
@@ -538,17 +616,30 @@ def replan(plan: PlanFiles, segments: list[str] | None = None, limits: Limits = 
         ranked = choose(cfg, before, sector, sectors[sector], travel, limits, kin, scene, on_step)
         tried[sector] = ranked
         chosen[sector] = ranked[0]
+    # a sector whose infeasible segments no curve in the patch makes feasible: the
+    # set-up changes that would, per layer
+    setup: dict[str, list[dict]] = {}
+    stuck: dict[str, list[str]] = {}
+    for sector, ranked in tried.items():
+        if "infeasible" in {r.kind for r in sectors[sector]} and (
+                not ranked[0].evaluation.feasible or "infeasible" in ranked[0].remaining):
+            stuck.setdefault(sector[0], []).extend(
+                sid for sid in before.values if sector_of(sid) == sector
+                and not before.values[sid].get("feasible", True))
+    for layer, segs in stuck.items():
+        setup[layer] = setup_changes(cfg, layer, segs, travel, on_step)
     changes = {s: c.curve for s, c in chosen.items() if c.curve is not None}
-    # the sectors whose curves changed get a re-measure program of their layer
-    new_cfg = with_overrides(cfg, {**_current(cfg), **changes},
-                             tuple(sorted(changes, key=lambda x: (x[0], int(x[1:]))))) \
-        if changes else cfg
+    # the sectors whose curves changed get a re-measure program of their layer, unless
+    # a piece of theirs is still infeasible (it would be left out of the layer program)
+    remeasure = tuple(sorted((s for s in changes if "infeasible" not in chosen[s].remaining),
+                             key=lambda x: (x[0], int(x[1:]))))
+    new_cfg = with_overrides(cfg, {**_current(cfg), **changes}, remeasure) if changes else cfg
     if on_step:
         on_step("reviewing the re-planned plan")
     keep = {name: ev for name, ev in before.layers.items()
             if name not in {s[0] for s in changes}}
     after = review(new_cfg, travel, limits, None, kin, Scene(new_cfg, kin), keep, before.directions)
-    return Replan(before, after, new_cfg, chosen, tried, list(segments or []))
+    return Replan(before, after, new_cfg, chosen, tried, list(segments or []), setup)
 
 
 def report_json(r: Replan) -> dict:
@@ -586,6 +677,7 @@ def report_json(r: Replan) -> dict:
         "bad_segments_before": {sid: [x.as_json() for x in rs] for sid, rs in r.before.reasons.items()},
         "bad_segments_after": {sid: [x.as_json() for x in rs] for sid, rs in r.after.reasons.items()},
         "sectors": sectors,
+        "setup_changes": r.setup,
         "overrides": [{k2: v for k2, v in (("sector", o.sector), ("amplitude", o.amplitude),
                                            ("waves_per_sector", o.waves_per_sector),
                                            ("projection", o.projection)) if v is not None}
@@ -616,6 +708,18 @@ def report_text(r: Replan) -> str:
                                  f"information {c['information_nats']:.3f} nats, layer "
                                  f"{c['layer_cycle_s']:.1f} s")
             for c in s["candidates"][:6]) + (" ..." if len(s["candidates"]) > 6 else ""))
+    for layer, tried in r.setup.items():
+        lines.append("")
+        works = [x for x in tried if x.get("feasible")]
+        lines.append(f"LAYER {layer}: no curve in the patch makes its infeasible segments feasible; "
+                     + ("these set-up changes would (each planned): " + "; ".join(
+                         f"{x['change']} ({x['config']}, clearance {x['min_clearance_mm']:.2f} mm)"
+                         if x.get("min_clearance_mm") is not None else
+                         f"{x['change']} ({x['config']})" for x in works)
+                        if works else "none of the set-up changes tried would: " + "; ".join(
+                            f"{x['change']}: " + (", ".join(x.get("still_infeasible", [])[:4])
+                                                  + " still infeasible" if x.get("planned")
+                                                  else x.get("why", "")) for x in tried)))
     info = j["information_nats"]
     lines.append("")
     lines.append(f"WHOLE TEST: information of the {j['determined_combinations']} determined "
