@@ -112,13 +112,16 @@ def run_case(k: int, seed: int, plan_dir: Path, work: Path) -> dict:
            "recordings": []}
     truth_rec = dict(recs)
     for x in rep["recordings"]:
-        first = next((f["effect"] for f in x["diagnosis"]["findings"]
-                      if f["effect"] not in NOT_EFFECTS), None)
+        lead = next((f for f in x["diagnosis"]["findings"] if f["effect"] not in NOT_EFFECTS), None)
+        first = lead["effect"] if lead else None
+        # an ambiguous finding names its pair together (lag or smoothing at one feed)
+        pair = [first] + list(lead.get("ambiguous_with") or []) if lead else [None]
         al = x["diagnosis"]["alignment"]
         t = truth_rec[x["program"]]
         out["recordings"].append({
             "program": x["program"], "named_first": first,
             "right": first == name,
+            "in_ambiguous": name in pair and first != name,
             "offset_ms": (al["offset_s"] - t["offset_s"]) * 1e3,
             "clock_err_ppm": al["clock_ppm"] - t["clock_ppm"],
             "clock_ok": abs(al["clock_ppm"] - t["clock_ppm"]) <= max(5.0, 4 * (al["clock_std_ppm"] or 0)),
@@ -160,8 +163,10 @@ def main() -> None:
     clean = [x for r in ok for x in r["recordings"] if not r["effect"]]
     print(f"\ncases {len(ok)} of {len(results)} analysed; determined combinations within 3 std: "
           f"{within}/{combos} ({within / max(combos, 1):.1%})")
-    print(f"effect named first: {sum(x['right'] for x in eff)}/{len(eff)} recordings; clean "
-          f"recordings with no effect named: {sum(x['right'] for x in clean)}/{len(clean)}")
+    print(f"effect named first: {sum(x['right'] for x in eff)}/{len(eff)} recordings (and "
+          f"{sum(x.get('in_ambiguous', False) for x in eff)} more named with it as one ambiguous "
+          f"finding); clean recordings with no effect named: "
+          f"{sum(x['right'] for x in clean)}/{len(clean)}")
     print(f"alignment: start within 50 ms {sum(x['offset_ok'] for x in recs)}/{len(recs)}, clock "
           f"within max(5 ppm, 4 std) {sum(x['clock_ok'] for x in recs)}/{len(recs)}")
     if a.json:

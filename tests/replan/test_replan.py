@@ -45,10 +45,16 @@ def test_a_sector_made_bad_is_named_with_its_reason(bad_plan):
     assert not any(r.kind == "speed_dip" for rs in clean.reasons.values() for r in rs)
 
 
-def test_replan_clears_it_and_writes_a_plan(bad_plan, tmp_path):
-    out = tmp_path / "re"
+@pytest.fixture(scope="module")
+def replanned(bad_plan) -> Path:
+    out = bad_plan / "re"
     r = cli("replan", "--plan", str(bad_plan / "plan"), "--segment", "A2-1", "--out", str(out), "-q")
     assert r.returncode == 0, r.stderr
+    return out
+
+
+def test_replan_clears_it_and_writes_a_plan(bad_plan, replanned, tmp_path):
+    out = replanned
     rep = json.loads((out / "replan.json").read_text())
     (sector,) = rep["sectors"]
     assert sector["sector"] == "A2" and sector["chosen"] != "as planned"
@@ -109,7 +115,7 @@ def test_overrides_replace_earlier_ones_for_the_same_sector(bad_plan):
     assert new.text.count("[[test.curve.override]]") == 1
 
 
-def test_remeasure_program_runs_only_the_replanned_sector_from_and_back_to_a1(bad_plan, tmp_path):
+def test_remeasure_program_runs_only_the_replanned_sector_from_and_back_to_a1(replanned):
     """The short program per affected layer: from A-1 along the track to the sector's
     node, the sector forward and back, and home; the same lint, on-sphere read-back and
     LinuxCNC interpreter checks as every program."""
@@ -117,9 +123,7 @@ def test_remeasure_program_runs_only_the_replanned_sector_from_and_back_to_a1(ba
     from sdit_path.nc.chords import chord_deviation
     from sdit_path.nc.readback import read_sinumerik
 
-    out = tmp_path / "re"
-    r = cli("replan", "--plan", str(bad_plan / "plan"), "--segment", "A2-2", "--out", str(out), "-q")
-    assert r.returncode == 0, r.stderr
+    out = replanned
     new = load_plan(out)
     assert new.config.test.remeasure == ("A2",)
     entry = next(p for p in new.manifest["programs"]
