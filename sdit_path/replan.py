@@ -27,7 +27,9 @@ timing) and chosen by a documented objective, in this order: feasible; clearing 
 most of the sector's reasons; then the largest information of the whole test's
 determined combinations (log-determinant of their information matrix, nats: +0.1 makes
 their geometric-mean standard uncertainty exp(-0.1 / 2k) times smaller, k the
-combinations), gains within 0.05 nats counting as a tie; then the shorter layer.  The sector as planned is a candidate too: it
+combinations), gains within 0.05 nats counting as a tie; then the smaller bias a 1 ms lag
+of one axis puts on them (in their standard uncertainties at 0.2 um of noise); then the
+shorter layer.  The sector as planned is a candidate too: it
 stays when nothing does better.
 """
 
@@ -94,6 +96,9 @@ class LayerEval:
     segment_info: dict[str, np.ndarray]  # segment -> J^T J (scaled parameters)
     schur: np.ndarray
     samples: Samples | None = None
+    #: (parameters, axes): what a 1 ms lag of each axis adds to the normal equations'
+    #: right-hand side (set-up eliminated): its bias of the geometry is S^-1 of it
+    lag_source: np.ndarray | None = None
 
 
 @dataclass
@@ -104,6 +109,7 @@ class Candidate:
     information_nats: float = 0.0
     cleared: list[str] = field(default_factory=list)
     remaining: list[str] = field(default_factory=list)
+    lag_bias: float = math.inf  # the largest over the axes (see Review)
 
     @property
     def label(self) -> str:
@@ -150,13 +156,14 @@ def evaluate_layer(cfg: Config, layer_name: str, travel: dict, kin: Kinematics,
     timer = Timer(cfg, kin)
     timed = timer.time_layer(path)
     s = sample(timed, timer, cfg.timing.sample_rate_hz)
-    _motion_values(cfg, kin, s, values)
-    info, S = _design(cfg, s, travel, layer_name)
-    return LayerEval(layer_name, True, bad, float(timed.duration_s), values, info, S, s)
+    lag = _motion_values(cfg, kin, s, values)
+    info, S, X = _design(cfg, s, travel, layer_name, lag)
+    return LayerEval(layer_name, True, bad, float(timed.duration_s), values, info, S, s, X)
 
 
-def _motion_values(cfg: Config, kin: Kinematics, s: Samples, values: dict) -> None:
-    """Travel margin, speed dip, acceleration and servo sensitivity per segment."""
+def _motion_values(cfg: Config, kin: Kinematics, s: Samples, values: dict) -> np.ndarray:
+    """Travel margin, speed dip, acceleration and servo sensitivity per segment; returns
+    the reading change of a 1 ms lag of each axis at every sample ``(n, axes)``, um."""
     q = axis_values_rad(s, kin)
     dt = float(s.t_s[1] - s.t_s[0]) if len(s.t_s) > 1 else 1e-3
     qd = np.gradient(q, dt, axis=0)
@@ -165,13 +172,15 @@ def _motion_values(cfg: Config, kin: Kinematics, s: Samples, values: dict) -> No
     ball = kin.forward(q)
     u = (ball - pivot) / np.linalg.norm(ball - pivot, axis=1)[:, None]
     # the reading change of a 1 ms lag of axis i: u . (d ball / d q_i) qdot_i 1 ms
-    sens = np.zeros((len(q), q.shape[1]))
+    lag = np.zeros((len(q), q.shape[1]))
     for i in range(q.shape[1]):
         h = 1e-6
         dq = np.zeros(q.shape[1])
         dq[i] = h
         dball = (kin.forward(q + dq) - kin.forward(q - dq)) / (2 * h)
-        sens[:, i] = np.abs(np.einsum("nj,nj->n", u, dball) * qd[:, i]) * 1e-3 * 1e3  # um / ms
+        # lagging by 1 ms the axis is q_dot 1 ms behind: the bar reads u . d ball of it
+        lag[:, i] = -np.einsum("nj,nj->n", u, dball) * qd[:, i] * 1e-3 * 1e3  # um
+    sens = np.abs(lag)
     feed = cfg.test.feed_mm_per_min / 60.0
     acc_lim = np.array([ax.max_acceleration for ax in kin.axes])  # mm/s^2, rad/s^2
     margins = []
@@ -217,36 +226,65 @@ def _motion_values(cfg: Config, kin: Kinematics, s: Samples, values: dict) -> No
             (rot if is_rot else lin).append(math.degrees(d) if is_rot else d)
         v["travel_margin_mm"] = min(lin) if lin else None
         v["travel_margin_deg"] = min(rot) if rot else None
+    return lag
 
 
-def _design(cfg: Config, s: Samples, travel: dict, layer: str) -> tuple[dict, np.ndarray]:
-    """Per-segment J^T J and the layer's Schur complement (set-up eliminated), from the
-    timed samples (no recording: the design alone)."""
+def _design(cfg: Config, s: Samples, travel: dict, layer: str, lag: np.ndarray
+            ) -> tuple[dict, np.ndarray, np.ndarray]:
+    """Per-segment information, the layer's Schur complement (set-up eliminated) and
+    what a 1 ms lag of each axis adds to the right-hand side, from the timed samples
+    (no recording: the design alone)."""
     model, _ = _model(cfg, travel)
     plan = PlanFiles(None, cfg, {"programs": [{"name": layer}]})
     plan._read[layer] = s
-    g = experiment_gram(plan, layer, None, model, segment_nuisances=True)
-    S, _, _, _ = _schur([g])
+    g = experiment_gram(plan, layer, None, model, extra=lag, segment_nuisances=True)
+    k = 4  # the set-up: centring and bar length (the lag columns follow)
+    B, C = g.B[:, :k], g.C[:k, :k]
+    Ci = np.linalg.pinv(C)
+    S = 0.5 * ((g.A - B @ Ci @ B.T) + (g.A - B @ Ci @ B.T).T)
+    X = g.B[:, k:] - B @ Ci @ g.C[:k, k:]
     # each segment's information once the layer's set-up is eliminated: its rows of the
     # regressors less what the set-up, fitted over the whole layer, takes from them
-    M = np.linalg.pinv(g.C) @ g.B.T
+    M = Ci @ B.T
     info = {}
     for sid, (a, _) in g.segments.items():
         b, c = g.segment_nuisances[sid]
+        b, c = b[:, :k], c[:k, :k]
         info[sid] = a - b @ M - M.T @ b.T + M.T @ c @ M
-    return info, S
+    return info, S, X
+
+
+#: the noise the servo bias is measured against (um, 1 sigma; a ballbar's typical)
+BIAS_NOISE_UM = 0.2
 
 
 @dataclass
 class Review:
     """The whole plan judged: per segment its values and reasons; the test's determined
-    directions and information."""
+    directions and information; ``lag_bias``: per axis, the largest bias a 1 ms lag of
+    that axis alone puts on a determined combination, in its standard uncertainties at
+    ``BIAS_NOISE_UM`` of noise (the geometry read from dynamics)."""
 
     values: dict[str, dict]
     reasons: dict[str, list[Reason]]
     layers: dict[str, LayerEval]
     directions: np.ndarray  # determined directions (scaled parameters), columns
     information_nats: float
+    lag_bias: dict[str, float] = field(default_factory=dict)
+
+
+def lag_bias(layers: dict[str, LayerEval], Vd: np.ndarray, axis_names) -> dict[str, float]:
+    """See :class:`Review`: the bias S^-1 X of a 1 ms lag over the whole test, along the
+    determined directions, over their standard uncertainties."""
+    ok = [ev for ev in layers.values() if ev.feasible and ev.lag_source is not None]
+    if not ok or Vd.shape[1] == 0:
+        return {}
+    S = sum(ev.schur for ev in ok)
+    X = sum(ev.lag_source for ev in ok)
+    Mi = np.linalg.pinv(Vd.T @ S @ Vd, hermitian=True)
+    bias = Mi @ (Vd.T @ X)  # (directions, axes)
+    std = BIAS_NOISE_UM * np.sqrt(np.maximum(np.diag(Mi), 1e-300))
+    return {name: float(np.max(np.abs(bias[:, i]) / std)) for i, name in enumerate(axis_names)}
 
 
 def _logdet(V: np.ndarray, S: np.ndarray) -> float:
@@ -280,7 +318,8 @@ def review(cfg: Config, travel: dict, limits: Limits = Limits(), on_step=None,
         directions = V[:, lam > max(float(lam.max()), 1e-300) * STRUCTURAL]
     Vd = directions
     values = _with_information(done, Vd)
-    return Review(values, judge(cfg, values, limits), done, Vd, _logdet(Vd, S))
+    return Review(values, judge(cfg, values, limits), done, Vd, _logdet(Vd, S),
+                  lag_bias(done, Vd, kin.names))
 
 
 def _with_information(layers: dict[str, LayerEval], Vd: np.ndarray) -> dict[str, dict]:
@@ -451,6 +490,8 @@ def choose(cfg: Config, rev: Review, sector: str, reasons: list[Reason], travel:
         cand = Candidate(sector, curve, ev)
         if ev.feasible:
             cand.information_nats = _logdet(rev.directions, S_rest + ev.schur)
+            cand.lag_bias = max(lag_bias({**rev.layers, layer: ev}, rev.directions,
+                                         kin.names).values(), default=math.inf)
             whole = _with_information({**rev.layers, layer: ev}, rev.directions)
             vals = {sid: whole[sid] for sid in seg_ids if sid in whole}
             # judged against the plan's yardstick of servo sensitivity
@@ -472,7 +513,8 @@ def choose(cfg: Config, rev: Review, sector: str, reasons: list[Reason], travel:
         # than a tie of information (a second saved is not worth a new curve)
         planned = next((c for c in near if c.curve is None), None)
         best = planned if planned is not None and not planned.cleared else \
-            min(near, key=lambda c: (round(c.evaluation.cycle_s, 1), c.curve is not None))
+            min(near, key=lambda c: (round(c.lag_bias, 1), round(c.evaluation.cycle_s, 1),
+                                     c.curve is not None))
         out.remove(best)
         out.insert(0, best)
     return out
@@ -642,7 +684,22 @@ def replan(plan: PlanFiles, segments: list[str] | None = None, limits: Limits = 
     return Replan(before, after, new_cfg, chosen, tried, list(segments or []), setup)
 
 
+def _finite(x):
+    """JSON has no infinities: a value that is not finite is null."""
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_finite(v) for v in x]
+    return x
+
+
 def report_json(r: Replan) -> dict:
+    return _finite(_report_json(r))
+
+
+def _report_json(r: Replan) -> dict:
     def seg(rev: Review, sid: str) -> dict:
         v = {k: x for k, x in rev.values.get(sid, {}).items() if k != "violations"}
         return {"values": v, "reasons": [x.as_json() for x in rev.reasons.get(sid, [])]}
@@ -661,16 +718,25 @@ def report_json(r: Replan) -> dict:
                             "infeasible_pieces": c.evaluation.infeasible,
                             "cleared": c.cleared, "remaining": c.remaining,
                             "information_nats": c.information_nats if c.evaluation.feasible else None,
+                            "lag_bias_std": c.lag_bias if c.evaluation.feasible else None,
                             "layer_cycle_s": c.evaluation.cycle_s if c.evaluation.feasible else None}
                            for c in ranked]})
     return {
         "objective": ("feasible; then the most of the sector's reasons cleared; then the "
                       "largest log-determinant of the information of the combinations the "
-                      "test determines (nats); then the shorter layer"),
+                      "test determines (nats; within 0.05 a tie); then the smaller bias of a "
+                      "1 ms axis lag on them; then the shorter layer; the sector as planned "
+                      "stays when nothing clears more or brings more than a tie"),
         "determined_combinations": k,
         "information_nats": {"before": r.before.information_nats, "after": r.after.information_nats,
                              "gain": gain,
-                             "geometric_mean_std_factor": math.exp(-gain / (2 * k)) if k else 1.0},
+                             "geometric_mean_std_factor": (math.exp(-gain / (2 * k))
+                                                           if k and math.isfinite(gain) else None)},
+        "lag_bias_std": {"noise_um": BIAS_NOISE_UM, "lag_ms": 1.0,
+                         "before": r.before.lag_bias, "after": r.after.lag_bias,
+                         "meaning": "per axis, the largest bias a 1 ms lag of that axis alone "
+                                    "puts on a determined combination, in its standard "
+                                    "uncertainties at this noise"},
         "cycle_s": {"before": sum(ev.cycle_s for ev in r.before.layers.values() if ev.feasible),
                     "after": sum(ev.cycle_s for ev in r.after.layers.values() if ev.feasible)},
         "segments_named": r.asked,
@@ -687,6 +753,7 @@ def report_json(r: Replan) -> dict:
 
 def report_text(r: Replan) -> str:
     j = report_json(r)
+    fmt = lambda v, f: "?" if v is None else format(v, f)  # noqa: E731
     lines = []
     nb = len(r.before.reasons)
     if r.asked:
@@ -703,10 +770,11 @@ def report_text(r: Replan) -> str:
             a = ", ".join(x["kind"] for x in ba["after"]["reasons"]) or "-"
             lines.append(f"  {sid:8} {b:44} {a}")
         lines.append("  candidates (best first): " + "; ".join(
-            f"{c['curve']}: " + ("infeasible" if not c["feasible"] else
+            f"{c['curve']}: " + ("cannot be planned" if not c["feasible"] else
                                  f"cleared {'+'.join(c['cleared']) or 'nothing'}, "
-                                 f"information {c['information_nats']:.3f} nats, layer "
-                                 f"{c['layer_cycle_s']:.1f} s")
+                                 f"information {fmt(c['information_nats'], '.3f')} nats, lag "
+                                 f"bias {fmt(c['lag_bias_std'], '.1f')} std, layer "
+                                 f"{fmt(c['layer_cycle_s'], '.1f')} s")
             for c in s["candidates"][:6]) + (" ..." if len(s["candidates"]) > 6 else ""))
     for layer, tried in r.setup.items():
         lines.append("")
@@ -723,8 +791,14 @@ def report_text(r: Replan) -> str:
     info = j["information_nats"]
     lines.append("")
     lines.append(f"WHOLE TEST: information of the {j['determined_combinations']} determined "
-                 f"combinations {info['before']:.3f} -> {info['after']:.3f} nats (their geometric-"
-                 f"mean standard uncertainty x {info['geometric_mean_std_factor']:.3f}); cycle "
+                 f"combinations {fmt(info['before'], '.3f')} -> {fmt(info['after'], '.3f')} nats "
+                 f"(their geometric-mean standard uncertainty x "
+                 f"{fmt(info['geometric_mean_std_factor'], '.3f')}); a 1 ms lag of one axis "
+                 f"biases them by at most "
+                 + ", ".join(f"{a} {fmt(j['lag_bias_std']['before'].get(a), '.1f')} -> "
+                             f"{fmt(j['lag_bias_std']['after'].get(a), '.1f')}"
+                             for a in j["lag_bias_std"]["before"])
+                 + f" std (at {BIAS_NOISE_UM} um noise); cycle "
                  f"{j['cycle_s']['before']:.1f} -> {j['cycle_s']['after']:.1f} s; bad segments "
                  f"{len(j['bad_segments_before'])} -> {len(j['bad_segments_after'])}.")
     return "\n".join(lines) + "\n"

@@ -153,3 +153,17 @@ def test_remeasure_program_runs_only_the_replanned_sector_from_and_back_to_a1(re
         assert [s for _, s in rec.dwells] == [2.0] * 5
     # its trajectory is there for simulation and analysis like any program's
     assert len(new.trajectory("GOLD_A_R").t_s) > 1000
+
+
+def test_a_lags_bias_cancels_over_both_passes_and_not_over_one(bad_plan):
+    """The servo-bias score (what a 1 ms lag of one axis does to the determined
+    combinations, in their uncertainties): a lag is odd in the velocity, so the forward
+    and reverse passes over the same poses cancel its first-order bias; one pass does not."""
+    plan = load_plan(bad_plan / "plan")
+    travel = plan.tested_travel()
+    both = review(parse_config(GOLDEN.read_text(), str(GOLDEN)), travel)
+    one = review(parse_config(GOLDEN.read_text().replace(
+        "feed_mm_per_min = 1000.0", 'feed_mm_per_min = 1000.0\npasses = ["forward"]'), "one.toml"), travel)
+    assert set(both.lag_bias) == {"X", "Y", "Z"}
+    assert max(both.lag_bias.values()) < 1e-3
+    assert max(one.lag_bias.values()) > 10.0
