@@ -167,3 +167,21 @@ def test_a_lags_bias_cancels_over_both_passes_and_not_over_one(bad_plan):
     assert set(both.lag_bias) == {"X", "Y", "Z"}
     assert max(both.lag_bias.values()) < 1e-3
     assert max(one.lag_bias.values()) > 10.0
+
+
+def test_an_analysis_names_where_it_left_a_residual(bad_plan):
+    from sdit_path.errors import ConfigError
+    from sdit_path.replan import analysis_reasons
+
+    plan = load_plan(bad_plan / "plan")
+    rec = {"program": "GOLD_A", "diagnosis": {"noise_um": 0.2, "unexplained": {
+        "significant": True, "where": {"segment_rms_um": {"A2-1": 1.3, "A1-1": 0.3, "A-1": 2.0}}}}}
+    reasons = analysis_reasons(plan, {"recordings": [rec]}, "a.json")
+    assert set(reasons) == {"A2-1"}  # 0.3 um is within 2 x noise; A-1 is a node, not a segment
+    (r,) = reasons["A2-1"]
+    assert r.kind == "residual" and r.value == 1.3 and r.limit == pytest.approx(0.4)
+    quiet = {**rec, "diagnosis": {**rec["diagnosis"], "unexplained": {
+        **rec["diagnosis"]["unexplained"], "significant": False}}}
+    assert analysis_reasons(plan, {"recordings": [quiet]}, "a.json") == {}
+    with pytest.raises(ConfigError, match="analysis.json written by sdit-path analyse"):
+        analysis_reasons(plan, {"geometry": {}}, "a.json")
