@@ -121,8 +121,13 @@ class Candidate:
                           ("projection", c.projection)) if v is not None)
 
 
+#: the model the information is measured with: the one ``analyse`` identifies by
+#: default (linear errors to first order, squareness, rotary locations)
+REVIEW_MODEL = ModelOptions("legendre", 1, 0, True, True)
+
+
 def _model(cfg: Config, travel: dict) -> tuple:
-    model = build_model(cfg.machine, travel, ModelOptions())
+    model = build_model(cfg.machine, travel, REVIEW_MODEL)
     return model, np.array([prior_scale(p) for p in model.parameters])
 
 
