@@ -681,19 +681,12 @@ def _overrides(r: _Reader, c: dict, tracks: int, nodes: int) -> tuple[SectorCurv
         raise r.fail(key, f"expected [[{key}]] tables, got {_describe(raw)}")
     if len(raw) > 25 * 72:
         raise r.fail(key, f"expected at most one override per sector, got {len(raw)}")
-    letters = "ABCDEFGHIJKLMNOPQRSTUVWXY"[:tracks]
     out, seen = [], set()
     base = key
     for i, o in enumerate(raw, start=1):
         key = f"{base}[{i}]" if len(raw) > 1 else base
         r.no_unknown(o, key, ("sector", "amplitude", "waves_per_sector", "projection"))
-        sector = r.string(o, f"{key}.sector")
-        ok = (len(sector) >= 2 and sector[0] in letters and sector[1:].isdigit()
-              and 1 <= int(sector[1:]) <= nodes and str(int(sector[1:])) == sector[1:])
-        if not ok:
-            raise r.fail(f"{key}.sector", f"expected a layer letter ({letters[0]}-{letters[-1]}) and a "
-                                          f"sector number 1-{nodes}, such as {letters[-1]}{min(3, nodes)}, "
-                                          f"got {_short(sector)}")
+        sector = _sector_name(r, f"{key}.sector", r.string(o, f"{key}.sector"), tracks, nodes)
         if sector in seen:
             raise r.fail(f"{key}.sector", f"expected each sector at most once, got {sector} twice")
         seen.add(sector)

@@ -33,6 +33,14 @@ class PlanFiles:
     #: its arrays are read-only)
     _read: dict = field(default_factory=dict, compare=False, repr=False)
 
+    @classmethod
+    def in_memory(cls, config: Config, program: str, samples: Samples) -> "PlanFiles":
+        """A plan of one program whose trajectory is ``samples`` (not read from files):
+        to study a design before it is written."""
+        plan = cls(None, config, {"programs": [{"name": program}]})
+        plan._read[program] = samples
+        return plan
+
     @property
     def program_names(self) -> list[str]:
         return sorted({p["name"] for p in self.manifest["programs"]})

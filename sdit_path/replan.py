@@ -44,7 +44,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .config import Config, SectorCurve, parse_config
-from .errormodel.model import ModelOptions, build_model, prior_scale
+from .errormodel.model import ModelOptions, build_model
 from .errors import ConfigError
 from .geometry.hemisphere import partition
 from .geometry.paths import PathBuilder
@@ -124,11 +124,6 @@ class Candidate:
 #: the model the information is measured with: the one ``analyse`` identifies by
 #: default (linear errors to first order, squareness, rotary locations)
 REVIEW_MODEL = ModelOptions("legendre", 1, 0, True, True)
-
-
-def _model(cfg: Config, travel: dict) -> tuple:
-    model = build_model(cfg.machine, travel, REVIEW_MODEL)
-    return model, np.array([prior_scale(p) for p in model.parameters])
 
 
 def evaluate_layer(cfg: Config, layer_name: str, travel: dict, kin: Kinematics,
@@ -239,10 +234,9 @@ def _design(cfg: Config, s: Samples, travel: dict, layer: str, lag: np.ndarray
     """Per-segment information, the layer's Schur complement (set-up eliminated) and
     what a 1 ms lag of each axis adds to the right-hand side, from the timed samples
     (no recording: the design alone)."""
-    model, _ = _model(cfg, travel)
-    plan = PlanFiles(None, cfg, {"programs": [{"name": layer}]})
-    plan._read[layer] = s
-    g = experiment_gram(plan, layer, None, model, extra=lag, segment_nuisances=True)
+    model = build_model(cfg.machine, travel, REVIEW_MODEL)
+    g = experiment_gram(PlanFiles.in_memory(cfg, layer, s), layer, None, model, extra=lag,
+                        segment_nuisances=True)
     k = 4  # the set-up: centring and bar length (the lag columns follow)
     B, C = g.B[:, :k], g.C[:k, :k]
     Ci = np.linalg.pinv(C)
@@ -437,28 +431,27 @@ def with_overrides(cfg: Config, overrides: dict[str, SectorCurve],
     return parse_config(text, cfg.source)
 
 
+def _tables(text: str) -> list[str]:
+    """The config text cut before every table header (the first part: before any)."""
+    return re.split(r"(?m)^(?=\s*\[)", text)
+
+
 def _drop_overrides(text: str, sectors: set[str]) -> str:
     """The config text without the ``[[test.curve.override]]`` tables of ``sectors``."""
-    parts = re.split(r"(?m)^(?=\s*\[)", text)
-    keep = []
-    for p in parts:
-        if re.match(r"\s*\[\[\s*test\.curve\.override\s*\]\]", p):
-            body = p.split("\n", 1)[1] if "\n" in p else ""
-            try:
-                sector = tomllib.loads(body).get("sector")
-            except tomllib.TOMLDecodeError:
-                sector = None
-            if sector in sectors:
-                continue
-        keep.append(p)
-    return "".join(keep)
+    def sector(part: str):
+        try:
+            return tomllib.loads(part.split("\n", 1)[1] if "\n" in part else "").get("sector")
+        except tomllib.TOMLDecodeError:
+            return None
+
+    header = re.compile(r"\s*\[\[\s*test\.curve\.override\s*\]\]")
+    return "".join(p for p in _tables(text) if not (header.match(p) and sector(p) in sectors))
 
 
 def _drop_table(text: str, name: str) -> str:
     """The config text without the table ``[name]`` (header to the next header)."""
-    parts = re.split(r"(?m)^(?=\s*\[)", text)
-    pattern = re.compile(r"\s*\[\s*" + re.escape(name) + r"\s*\]")
-    return "".join(p for p in parts if not pattern.match(p))
+    header = re.compile(r"\s*\[\s*" + re.escape(name) + r"\s*\]")
+    return "".join(p for p in _tables(text) if not header.match(p))
 
 
 def candidates_for(cfg: Config, sector: str) -> list[SectorCurve]:
