@@ -152,8 +152,10 @@ def _solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def _heldout_need(opt: "Options", mse_ho: float, noise: float, C_ho: np.ndarray) -> float:
-    """The held-out MSE drop an effect acting through ``C_ho`` must bring."""
-    return max(opt.min_heldout_gain * mse_ho, (opt.min_effect_noise * noise) ** 2 * _support(C_ho))
+    """The held-out MSE drop an effect acting through ``C_ho`` must bring: both parts in
+    proportion to the share of samples it acts on (a mode ringing after each start and
+    stop must explain its own samples, not 1 % of the whole trace)."""
+    return max(opt.min_heldout_gain * mse_ho, (opt.min_effect_noise * noise) ** 2) * _support(C_ho)
 
 
 def noise_estimate(r: np.ndarray, tau: np.ndarray) -> float:
