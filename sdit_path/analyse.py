@@ -181,7 +181,8 @@ def effect_columns(plan: PlanFiles, d: Diagnosis, options: ModelOptions, ctx
         # first-order change is a nuisance as well, so that their uncertainty reaches
         # the geometry's instead of biasing it
         for key, value in f.nonlinear.items():
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or key in getattr(eff, "discrete", ()):
                 continue
             h = 0.01 * abs(value) if value else 0.01
             up = _columns(eff, ctx, everywhere, {**f.nonlinear, key: value + h})

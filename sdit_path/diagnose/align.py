@@ -47,8 +47,8 @@ class Alignment:
 def generic_columns(ctx: Context, expected_um: np.ndarray, extra: np.ndarray | None = None
                     ) -> np.ndarray:
     """``(n, m)`` on the trajectory grid: expected reading (if it varies), constant,
-    bar direction, a smoothed motion indicator, -v^2/(2L), time, the reading of each
-    axis' acceleration and a step at each reversal of every linear axis.
+    bar direction, a smoothed motion indicator, -v^2/(2L), time, the reading of the
+    axes' accelerations and a step at each reversal of every linear axis.
 
     Every machine lags.  An equal lag of every axis is a later start up to its second
     order, which follows the axes' accelerations (a first-order lag tau leaves
@@ -61,7 +61,7 @@ def generic_columns(ctx: Context, expected_um: np.ndarray, extra: np.ndarray | N
     mov = np.convolve(mov, np.ones(k) / k, mode="same")
     cols = [np.ones(ctx.n), ctx.u[:, 0], ctx.u[:, 1], ctx.u[:, 2], mov,
             -(ctx.speed_mm_per_s ** 2) / (2 * ctx.length_mm) * 1e3, ctx.t_s / 3600.0,
-            *_axis_acceleration_readings(ctx).T]
+            _axis_acceleration_reading(ctx)]
     cols += [ctx.gain[:, j] * ctx.direction[:, j] for j in ctx.linear if j in ctx.observable]
     if np.ptp(expected_um) > 1e-3:
         cols.insert(0, expected_um)
@@ -70,17 +70,14 @@ def generic_columns(ctx: Context, expected_um: np.ndarray, extra: np.ndarray | N
     return X[:, keep]
 
 
-def _axis_acceleration_readings(ctx: Context) -> np.ndarray:
-    """``(n, k)``: gain_j * qddot_j of each observable axis j: what an error following
-    that axis' acceleration reads.  Equal lags of every axis leave their sum; every axis
-    also deflects with its own acceleration (its structure's compliance, a mode of tens
-    of Hz quasi-static below it): microns at each start and stop, which a single equal
-    column left in the timing (a mode of one axis pulled it 20 ms and 120 ppm)."""
+def _axis_acceleration_reading(ctx: Context) -> np.ndarray:
+    """sum_j gain_j * qddot_j: what equal accelerations of every axis' error read (um per
+    unit, scaled later)."""
     obs = list(ctx.observable)
     if len(ctx.t_s) < 3 or not obs:
-        return np.zeros((ctx.n, 0))
+        return np.zeros(ctx.n)
     qdd = np.gradient(ctx.qdot[:, obs], ctx.t_s, axis=0)
-    return ctx.gain[:, obs] * qdd
+    return np.einsum("nj,nj->n", ctx.gain[:, obs], qdd)
 
 
 def _block_mean(x: np.ndarray, w: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

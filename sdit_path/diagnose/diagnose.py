@@ -504,11 +504,21 @@ def dynamic_columns(ctx: Context) -> np.ndarray:
     allg = Samples(np.arange(ctx.n), ctx.t_s)
     cols = [ServoMismatch().columns(ctx, allg, {})[0]]
     cols.append(ctx.u * (ctx.t_s / 3600.0)[:, None])
+    # each axis deflects with its own acceleration (its structure's compliance, a mode
+    # of tens of Hz quasi-static below it): microns at each start and stop, which left
+    # 17-20 ms and 100-120 ppm in the timing.  Not generic: on a trace without it the
+    # same columns take the starts and stops the timing is read from
+    obs = list(ctx.observable)
+    if len(ctx.t_s) > 2 and obs:
+        cols.append(ctx.gain[:, obs] * np.gradient(ctx.qdot[:, obs], ctx.t_s, axis=0))
     widths = {f"width_{ctx.axis_names[j]}_um": 6.5 for j in linear_axes(ctx)
               if len(ctx.reversal_times[j])}
     if widths:
         cols.append(Backlash().columns(ctx, allg, widths)[0])
-        cols.append(ReversalSpike().columns(ctx, allg, {"tau_ms": 25.0})[0])
+        # a pulse at the sign change and one at a breakaway speed (25 ms later on a
+        # slow reversal inside a curve)
+        for onset in (ReversalSpike.onsets_mm_s[0], 0.05):
+            cols.append(ReversalSpike().columns(ctx, allg, {"tau_ms": 25.0, "onset_mm_s": onset})[0])
         cols.append(LateralPlay().columns(ctx, allg, {})[0])
     return np.column_stack(cols)
 
