@@ -251,30 +251,36 @@ def default_jobs() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def _each(job, labels: list[str], jobs: int, step, what: str) -> list:
-    """``job(k)`` for every recording, in order, in ``jobs`` worker processes (forked:
-    everything built so far is shared); the progress names each recording as its turn
-    comes.  BLAS runs one thread per process throughout the analysis, so the result does
-    not depend on how many workers there are (the same bytes with one or with many)."""
+def _each(job, labels: list[str], jobs: int, step, what: str,
+          sizes: list[float] | None = None) -> list:
+    """``job(k)`` for every recording, in ``jobs`` worker processes (forked: everything
+    built so far is shared), the results in the recordings' order; with ``sizes`` (the
+    work each takes, roughly), the largest are started first, so that no worker is left
+    with a long one at the end.  The progress names each recording as its turn comes.
+    BLAS runs one thread per process throughout the analysis, so the result does not
+    depend on how many workers there are (the same bytes with one or with many)."""
     global _JOB
     jobs = min(jobs, len(labels))
+    order = list(range(len(labels)))
     if jobs <= 1 or "fork" not in multiprocessing.get_all_start_methods():
         out = []
         for k, label in enumerate(labels):
             step(what.format(label=label))
             out.append(job(k))
         return out
+    if sizes is not None:
+        order.sort(key=lambda k: -sizes[k])
     _JOB = job
-    out = []
+    out: list = [None] * len(labels)
     try:
         with multiprocessing.get_context("fork").Pool(jobs) as pool:
-            step(what.format(label=labels[0]))
-            for k, (ok, value) in enumerate(pool.imap(_run, range(len(labels)))):
-                if k:  # the first is announced as the pool starts
-                    step(what.format(label=labels[k]))
+            step(what.format(label=labels[order[0]]))
+            for i, (ok, value) in enumerate(pool.imap(_run, order)):
+                if i:  # the first is announced as the pool starts
+                    step(what.format(label=labels[order[i]]))
                 if not ok:
                     _reraise(value)
-                out.append(value)
+                out[order[i]] = value
     finally:
         _JOB = None
     return out
@@ -297,7 +303,8 @@ def _analyse(plan, recordings, options, step, note, jobs):
     labels = [label for label, _, _ in recordings]
     matched = _each(lambda k: match(plan, recordings[k][2], recordings[k][0], recordings[k][1],
                                     contexts),
-                    labels, jobs, step, "matching and aligning {label}")
+                    labels, jobs, step, "matching and aligning {label}",
+                    sizes=[float(len(trace.t_s)) for _, _, trace in recordings])
     for (label, named, trace), (rec, how) in zip(recordings, matched):
         if rec.program in used:
             raise RecordingError(f"{label}: a second recording of {rec.program} (the first: "
@@ -324,7 +331,8 @@ def _analyse(plan, recordings, options, step, note, jobs):
         # the effect columns on the trajectory grid: made where the context's caches are
         return d, effect_columns(plan, d, options, ctx)
 
-    results = _each(diagnosed, labels, jobs, step, "diagnosing {label}")
+    results = _each(diagnosed, labels, jobs, step, "diagnosing {label}",
+                    sizes=[float(len(rec.trace.t_s)) for _, _, rec, _ in first])
     done: list[Analysed] = []
     columns = []
     for (label, how, rec, trace), (d, cols) in zip(first, results):

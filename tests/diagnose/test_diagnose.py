@@ -238,3 +238,39 @@ def test_blind_check_on_the_independent_generator(plan_dir, tmp_path):
     assert clean["effect"] == "clean" and clean["no_finding"]
     assert slip["effect"] == "mount_slip" and slip["honest"]
     assert slip["offset_ok"] and slip["clock_ok"], slip
+
+
+def test_a_structural_mode_is_found_on_its_own_axis(setup):
+    """A mode of one axis rung by its acceleration (the deflection, not a ripple locked
+    to time) is found on that axis at its frequency: the axes start and stop together,
+    and a mode fitted to all of them at once spread one axis' compliance over three."""
+    from sdit_path.diagnose.effects import Samples, Vibration, _mode_response, linear_axes
+
+    _, ctx, _ = setup
+    j = next(k for k in linear_axes(ctx) if ctx.axis_names[k] == "Y")
+    acc = np.gradient(ctx.qdot[:, j], ctx.t_s) * 1e-3
+    x = _mode_response(acc, float(ctx.t_s[1] - ctx.t_s[0]), 70.0, 0.05)
+    rng = np.random.default_rng(5)
+    r = 3.0 * ctx.gain[:, j] * x + rng.normal(0, 0.1, ctx.n)
+    nl = Vibration().search(ctx, Samples(np.arange(ctx.n), ctx.t_s), r)
+    assert nl["axis"] == "Y" and nl["frequency_hz"] == pytest.approx(70.0, rel=0.08), nl
+    C, labels = Vibration().columns(ctx, Samples(np.arange(ctx.n), ctx.t_s), nl)
+    assert labels == ("compliance_Y_um_per_m_s2",)
+    assert float(np.linalg.lstsq(C, r, rcond=None)[0][0]) == pytest.approx(3.0, rel=0.1)
+
+
+def test_a_friction_pulse_after_breakaway_is_placed_where_it_starts(setup):
+    """A pulse that starts once the axis moves at 0.05 mm/s the other way (tens of ms
+    after the sign change on a slow reversal) is found with that onset, not bent onto
+    the sign change."""
+    from sdit_path.diagnose.effects import ReversalSpike, Samples
+
+    _, ctx, _ = setup
+    s = Samples(np.arange(ctx.n), ctx.t_s)
+    spike = ReversalSpike()
+    C = spike.columns(ctx, s, {"tau_ms": 25.0, "onset_mm_s": 0.05})[0]
+    r = C @ np.full(C.shape[1], 8.0) + np.random.default_rng(6).normal(0, 0.1, ctx.n)
+    nl = spike.search(ctx, s, r)
+    assert nl["onset_mm_s"] == 0.05 and nl["tau_ms"] == pytest.approx(25.0, rel=0.15), nl
+    at_sign_change = spike.columns(ctx, s, {"tau_ms": 25.0})[0]
+    assert not np.allclose(at_sign_change, C), "the onset must move the pulse on this program"
