@@ -261,14 +261,14 @@ def _each(job, labels: list[str], jobs: int, step, what: str,
     depend on how many workers there are (the same bytes with one or with many)."""
     global _JOB
     jobs = min(jobs, len(labels))
-    order = list(range(len(labels)))
     if jobs <= 1 or "fork" not in multiprocessing.get_all_start_methods():
         out = []
         for k, label in enumerate(labels):
             step(what.format(label=label))
             out.append(job(k))
         return out
-    if sizes is not None:
+    order = list(range(len(labels)))
+    if sizes:
         order.sort(key=lambda k: -sizes[k])
     _JOB = job
     out: list = [None] * len(labels)

@@ -70,14 +70,18 @@ def generic_columns(ctx: Context, expected_um: np.ndarray, extra: np.ndarray | N
     return X[:, keep]
 
 
-def _axis_acceleration_reading(ctx: Context) -> np.ndarray:
-    """sum_j gain_j * qddot_j: what equal accelerations of every axis' error read (um per
-    unit, scaled later)."""
+def axis_acceleration_readings(ctx: Context) -> np.ndarray:
+    """``(n, k)``: gain_j * qddot_j of each observable axis j, what an error following
+    that axis' acceleration reads (um per unit, scaled later)."""
     obs = list(ctx.observable)
     if len(ctx.t_s) < 3 or not obs:
-        return np.zeros(ctx.n)
-    qdd = np.gradient(ctx.qdot[:, obs], ctx.t_s, axis=0)
-    return np.einsum("nj,nj->n", ctx.gain[:, obs], qdd)
+        return np.zeros((ctx.n, 0))
+    return ctx.gain[:, obs] * np.gradient(ctx.qdot[:, obs], ctx.t_s, axis=0)
+
+
+def _axis_acceleration_reading(ctx: Context) -> np.ndarray:
+    """sum_j gain_j * qddot_j: what equal accelerations of every axis' error read."""
+    return axis_acceleration_readings(ctx).sum(axis=1)
 
 
 def _block_mean(x: np.ndarray, w: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

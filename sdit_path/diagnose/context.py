@@ -112,6 +112,15 @@ def _directions(qdot: np.ndarray, eps: float) -> np.ndarray:
     return out
 
 
+def reversals(direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Of one axis' +-1 direction: the indices where it flips, and for every sample the
+    index of the last flip at or before it (-1 before the first)."""
+    flips = np.flatnonzero(np.diff(direction) != 0) + 1
+    last = np.full(len(direction), -1)
+    last[flips] = flips
+    return flips, np.maximum.accumulate(last)
+
+
 def strided(n: int, points_mm: np.ndarray, spacing_mm: float = 0.5, max_stride: int = 20
             ) -> np.ndarray:
     """Indices of a sub-grid no coarser than ``spacing_mm`` of path (nor ``max_stride``
@@ -158,11 +167,8 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     at_rev = np.full((len(t), m), np.nan)
     rev_times = []
     for j in range(m):
-        flips = np.flatnonzero(np.diff(direction[:, j]) != 0) + 1
+        flips, last = reversals(direction[:, j])
         rev_times.append(t[flips])
-        last = np.full(len(t), -1)
-        last[flips] = flips
-        last = np.maximum.accumulate(last)
         ok = last >= 0
         since[ok, j] = t[ok] - t[last[ok]]
         at_rev[ok, j] = q[last[ok], j]

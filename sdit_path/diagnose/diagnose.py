@@ -23,7 +23,8 @@ from ..errormodel.errorset import ErrorSet
 from ..machine.kinematics import Kinematics
 from ..planfiles import PlanFiles
 from ..sim.simulate import Trace, error_values
-from .align import Alignment, SetupStep, _at, _lsq, align, generic_columns, refine, setup_step
+from .align import Alignment, SetupStep, _at, _lsq, align, axis_acceleration_readings, \
+    generic_columns, refine, setup_step
 from .context import Context, build_context, strided
 from .effects import GEOMETRIC, PRIOR_ORDER, Backlash, Effect, GeometryBeyond, LateralPlay, \
     ReversalSpike, Samples, ScaleMismatch, ServoMismatch, Squareness, library, linear_axes
@@ -508,9 +509,7 @@ def dynamic_columns(ctx: Context) -> np.ndarray:
     # of tens of Hz quasi-static below it): microns at each start and stop, which left
     # 17-20 ms and 100-120 ppm in the timing.  Not generic: on a trace without it the
     # same columns take the starts and stops the timing is read from
-    obs = list(ctx.observable)
-    if len(ctx.t_s) > 2 and obs:
-        cols.append(ctx.gain[:, obs] * np.gradient(ctx.qdot[:, obs], ctx.t_s, axis=0))
+    cols.append(axis_acceleration_readings(ctx))
     widths = {f"width_{ctx.axis_names[j]}_um": 6.5 for j in linear_axes(ctx)
               if len(ctx.reversal_times[j])}
     if widths:

@@ -17,7 +17,7 @@ import numpy as np
 from ..errormodel.chain import sensitivities
 from ..errormodel.model import ModelOptions, build_model
 from ..machine.kinematics import Kinematics
-from .context import Context, _directions
+from .context import Context, _directions, reversals
 
 STICK_SLIP_SPEED_MM_PER_S = 200.0 / 60.0
 
@@ -351,10 +351,7 @@ class ReversalSpike(Effect):
         key = ("reversal_onset", j, onset)
         if key not in ctx._slow:
             d = _directions(ctx.qdot[:, [j]], onset)[:, 0]
-            flips = np.flatnonzero(np.diff(d) != 0) + 1
-            last = np.full(ctx.n, -1)
-            last[flips] = flips
-            last = np.maximum.accumulate(last)
+            _, last = reversals(d)
             since = np.where(last >= 0, ctx.t_s - ctx.t_s[np.maximum(last, 0)], np.inf)
             ctx._slow[key] = (since, d)
         return ctx._slow[key]
@@ -501,12 +498,13 @@ class Vibration(Effect):
         until a quarter second after), at most ``quota`` (a seeded choice): on a program
         that accelerates only where it starts and stops, a random choice over the whole
         trace kept a handful of samples of each ring and the search lost a 2 um mode."""
-        dt = float(ctx.t_s[1] - ctx.t_s[0])
-        acc = np.abs(np.column_stack([self._acc(ctx, j) for j in linear_axes(ctx)]))
-        on = (acc > 0.01 * np.maximum(acc.max(axis=0), 1e-12)).any(axis=1)
-        k = max(1, int(round(0.25 / dt)))
-        on = np.convolve(on.astype(float), np.ones(k), mode="full")[:ctx.n] > 0
-        cand = np.flatnonzero(on[s.idx])
+        if "ringing" not in ctx._slow:  # the same for every search on this program
+            dt = float(ctx.t_s[1] - ctx.t_s[0])
+            acc = np.abs(np.column_stack([self._acc(ctx, j) for j in linear_axes(ctx)]))
+            on = (acc > 0.01 * np.maximum(acc.max(axis=0), 1e-12)).any(axis=1)
+            k = max(1, int(round(0.25 / dt)))
+            ctx._slow["ringing"] = np.convolve(on.astype(float), np.ones(k), mode="full")[:ctx.n] > 0
+        cand = np.flatnonzero(ctx._slow["ringing"][s.idx])
         if len(cand) < min(quota, 5000):  # hardly any acceleration: the whole trace
             cand = np.arange(len(s.idx))
         rng = np.random.default_rng(3)
