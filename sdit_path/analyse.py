@@ -320,7 +320,7 @@ def _analyse(plan, recordings, options, step, note, jobs):
     # steps - as nuisances, so that it does not take them for geometry and hide them)
     generic = [dynamic_columns(_context(plan, rec.program, contexts)) for _, _, rec, _ in first]
     geo0 = identify([(plan, rec.program, _every(rec.trace, 5)) for _, _, rec, _ in first], options,
-                    extra=generic)
+                    extra=generic, jobs=jobs)
     model0 = ErrorSet("geometry identified from the recordings", options,
                       tuple(geo0["model_state"].items()))
     def diagnosed(k):
@@ -354,7 +354,7 @@ def _analyse(plan, recordings, options, step, note, jobs):
         experiments.append((plan, a.program, a.trace))
         extra.append(cols)
         groups.append(grp)
-    geometry = identify(experiments, options, extra=extra, groups=groups)
+    geometry = identify(experiments, options, extra=extra, groups=groups, jobs=jobs)
     return _report(done, geometry), done
 
 

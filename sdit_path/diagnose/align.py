@@ -66,8 +66,11 @@ def generic_columns(ctx: Context, expected_um: np.ndarray, extra: np.ndarray | N
     if np.ptp(expected_um) > 1e-3:
         cols.insert(0, expected_um)
     X = np.column_stack(cols + ([] if extra is None else [extra]))
-    keep = [i for i in range(X.shape[1]) if i == 0 or np.ptp(X[:, i]) > 1e-9]
-    return X[:, keep]
+    # every column's spread at once (row-major: column by column it read the whole
+    # matrix once per column)
+    keep = np.ptp(X, axis=0) > 1e-9
+    keep[0] = True
+    return X if keep.all() else X[:, keep]
 
 
 def axis_acceleration_readings(ctx: Context) -> np.ndarray:
@@ -182,7 +185,14 @@ def _at(t: np.ndarray, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
     x = np.clip((tau - t[0]) / dt, 0.0, len(t) - 1.000001)
     i = x.astype(int)
     f = (x - i)[:, None] if X.ndim == 2 else x - i
-    return X[i] * (1 - f) + X[np.minimum(i + 1, len(t) - 1)] * f
+    # the same arithmetic as X[i] * (1 - f) + X[i + 1] * f, in place (two gathers of a
+    # tall matrix instead of four temporaries)
+    out = X[i]
+    out *= 1 - f
+    nxt = X[np.minimum(i + 1, len(t) - 1)]
+    nxt *= f
+    out += nxt
+    return out
 
 
 def _pinv_gram(G: np.ndarray, rcond: float = 1e-10) -> np.ndarray:

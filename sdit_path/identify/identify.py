@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -319,11 +320,26 @@ def _observability(S_block: np.ndarray, Vd: np.ndarray, count: int) -> dict:
     return {"O1": o1, "O4": o4, "samples": count, "dimensions": L}
 
 
+def _mapper(jobs: int, n: int):
+    """``each(f)``: ``[f(0), ..., f(n - 1)]``, in ``jobs`` threads when more than one."""
+    if jobs <= 1 or n <= 1:
+        return lambda f: [f(k) for k in range(n)]
+
+    def each(f):
+        with ThreadPoolExecutor(min(jobs, n)) as pool:
+            return list(pool.map(f, range(n)))
+    return each
+
+
 def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOptions,
              prior: bool = False, ask: tuple[str, ...] = (),
              extra: list[np.ndarray | None] | None = None,
-             groups: list[list["ExtraGroup"]] | None = None) -> dict:
+             groups: list[list["ExtraGroup"]] | None = None, jobs: int = 1) -> dict:
     """Identify from one or more traces; returns the report as a plain dict.
+
+    ``jobs``: threads over the experiments for their normal equations (numpy leaves the
+    interpreter while it multiplies; each experiment's sums are made alone, in the same
+    order, so the result does not depend on ``jobs``).
 
     ``extra``: per experiment, more nuisance columns on its trajectory samples (see
     :func:`experiment_gram`), or None; ``groups`` names them (per experiment, the
@@ -342,8 +358,8 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
                                        f"{', '.join(model.names)}")
     scale = np.array([prior_scale(p) for p in model.parameters])
     caches = [{} for _ in experiments]
-    grams = [experiment_gram(plan, prog, tr, model, extra=x, cache=c)
-             for (plan, prog, tr), x, c in zip(experiments, extra, caches)]
+    each = _mapper(jobs, len(experiments))
+    grams = each(lambda k: experiment_gram(*experiments[k], model, extra=extra[k], cache=caches[k]))
     S, r, yy, m = _schur(grams)
     lam, V = np.linalg.eigh(S)
     order = np.argsort(lam)[::-1]
@@ -371,9 +387,10 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
     steps = []
     for _ in range(4):
         nuis = [np.linalg.pinv(g.C) @ (g.c - g.B.T @ x_hat) for g in grams]
-        corrected = [experiment_gram(plan, prog, tr, model, at=(x_hat * scale, n), extra=x,
-                                     cache=c, observe=False, blocks_s=BLOCK_S)
-                     for (plan, prog, tr), n, x, c in zip(experiments, nuis, extra, caches)]
+        corrected = each(lambda k: experiment_gram(*experiments[k], model,
+                                                   at=(x_hat * scale, nuis[k]), extra=extra[k],
+                                                   cache=caches[k], observe=False,
+                                                   blocks_s=BLOCK_S))
         for g_new, g_old in zip(corrected, grams):
             g_new.segments, g_new.layers = g_old.segments, g_old.layers
         _, r_c, yy_c, _ = _schur(corrected)
