@@ -10,6 +10,8 @@ unit axis error), so they hold for 3- and 5-axis machines alike.
 
 from __future__ import annotations
 
+import hashlib
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -249,7 +251,7 @@ class ServoMismatch(Effect):
         12-13 ms late to meet it."""
         key = (id(ctx), round(common_ms, 6))
         if key not in self._cache:
-            if len(self._cache) >= 16:
+            if len(self._cache) >= 24:  # the grid and the profiled values of one diagnosis
                 self._cache.pop(next(iter(self._cache)))
             others, _ = self._axes(ctx)
             v = ctx.qdot[:, others].astype(float)
@@ -749,11 +751,19 @@ class _ModelColumns(Effect):
             return np.zeros((len(s.idx), 0)), ()
         from ..errormodel.model import ErrorModel
 
-        sub = ErrorModel(self._model.axes, self._model.rotary,
-                         tuple(self._model.parameters[self._model.index(n)] for n in self._names),
-                         self._model.travel, self._model.options)
-        cols = sensitivities(self._kin, sub, ctx.q[s.idx], ctx.pivot_mm)
-        return cols, tuple(self._names)
+        # the same samples come back for every candidate of a pass: the sensitivities at
+        # the nominal poses are kept with the context (a few per kind)
+        kept = ctx._slow.setdefault(("pose columns", type(self).__name__), {})
+        key = hashlib.blake2b(np.ascontiguousarray(s.idx).tobytes(), digest_size=16).digest()
+        if key not in kept:
+            sub = ErrorModel(self._model.axes, self._model.rotary,
+                             tuple(self._model.parameters[self._model.index(n)]
+                                   for n in self._names),
+                             self._model.travel, self._model.options)
+            if len(kept) >= 4:
+                kept.pop(next(iter(kept)))
+            kept[key] = sensitivities(self._kin, sub, ctx.q[s.idx], ctx.pivot_mm)
+        return kept[key].copy(), tuple(self._names)
 
 
 class Squareness(_ModelColumns):
