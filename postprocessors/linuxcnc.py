@@ -51,12 +51,14 @@ class LinuxCNC:
         d = program.decimals
 
         body: list[str] = []
+        modal_feed = None  # the F in force (None after inverse time)
         for item in program.items:
             if isinstance(item, Comment):
                 body.append(f"({_comment(item.text)})")
             elif isinstance(item, LinearMove):
                 rot = "".join(f" {n}{fixed(v, d)}" for n, v in item.rotary_deg)
                 body.append(f"G1 {xyz(item.point_mm, d)}{rot} F{trimmed(item.feed_mm_per_min, 3)}")
+                modal_feed = item.feed_mm_per_min
             elif isinstance(item, Dwell):
                 body.append(f"(dwell at node {_comment(item.node_id)})")
                 body.append(f"G4 P{trimmed(item.seconds, 3)}")
@@ -72,7 +74,11 @@ class LinuxCNC:
                     line = xyz(p, d) + "".join(f" {n}{fixed(v[j], d)}" for n, v in item.rotary_deg)
                     if inverse is not None:
                         line += f" F{fixed(inverse[j], 4)}"
+                    elif j == 0 and item.feed_mm_per_min != modal_feed:
+                        # a sector re-planned at its own feed (and the feed after it)
+                        line += f" F{trimmed(item.feed_mm_per_min, 3)}"
                     body.append(f"G1 {line}" if j == 0 else line)
+                modal_feed = None if inverse is not None else item.feed_mm_per_min
                 if inverse is not None:
                     body.append("G94")
             elif isinstance(item, ProgramStop):

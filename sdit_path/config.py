@@ -136,18 +136,29 @@ class CurveConfig:
                         projection if o.projection is None else o.projection)
         return self.amplitude, self.waves_per_sector, projection
 
+    def feed_for(self, segment_id: str, feed_mm_per_min: float) -> float:
+        """The feed (mm/min) of the curves of a segment (``D3-2``): its sector's
+        override where it sets one, else ``feed_mm_per_min`` (the test's)."""
+        sector = segment_id.split("-")[0]
+        for o in self.overrides:
+            if o.sector == sector and o.feed_mm_per_min is not None:
+                return o.feed_mm_per_min
+        return feed_mm_per_min
+
 
 @dataclass(frozen=True, slots=True)
 class SectorCurve:
     """A re-planned sector (``[[test.curve.override]]``): its curves' own amplitude,
     waves and projection (None: the test's).  Every curve keeps the sector's nodes on
     the lower track with zero slope there, so any values stay tangent-continuous with
-    the neighbours."""
+    the neighbours.  ``feed_mm_per_min``: the sector's curves run at their own feed
+    (the transits and the other sectors at the test's)."""
 
     sector: str  # layer and 1-based sector, e.g. "D3"
     amplitude: float | None = None
     waves_per_sector: int | None = None
     projection: str | None = None
+    feed_mm_per_min: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -190,6 +201,19 @@ class TestConfig:
 
     def remeasure_sectors(self, layer: str) -> tuple[int, ...]:
         return tuple(int(s[1:]) for s in self.remeasure if s[0] == layer)
+
+    def run_feed(self, pieces, feed_mm_per_min: float | None = None) -> float:
+        """The feed (mm/min) of a run made of ``pieces`` (with ``id`` and ``kind``): a
+        sector's curves at their override's feed, transits at ``feed_mm_per_min`` (by
+        default the test's)."""
+        base = self.feed_mm_per_min if feed_mm_per_min is None else feed_mm_per_min
+        feeds = {self.curve.feed_for(p.id, base) for p in pieces if p.kind == "segment"}
+        return min(feeds) if feeds else base
+
+    def sector_feeds(self, layer: str) -> tuple[tuple[str, float], ...]:
+        """(sector, feed) of the sectors of ``layer`` that run at their own feed."""
+        return tuple((o.sector, o.feed_mm_per_min) for o in self.curve.overrides
+                     if o.sector[0] == layer and o.feed_mm_per_min is not None)
 
 
 @dataclass(frozen=True, slots=True)
@@ -610,17 +634,7 @@ def _test(r: _Reader, root: dict, machine: MachineConfig) -> TestConfig:
     nodes = r.integer(t, "test.nodes_per_track", 6, ge=1, le=72)
     subs = r.integer(t, "test.subsegments_per_sector", 3, ge=1, le=20)
     dwell = r.number(t, "test.dwell_s", 2.0, gt=0, le=3600, unit="s")
-    feed = r.number(t, "test.feed_mm_per_min", gt=0, unit="mm/min")
-    if feed < 1.0:
-        raise r.fail("test.feed_mm_per_min",
-                     f"expected a feed of at least 1 mm/min (programs write F with 3 decimals, "
-                     f"and a slower test would last days), got {feed:g}")
-    slowest = min(ax.max_velocity for ax in machine.linear_axes) * 60.0
-    fastest_path = math.sqrt(sum((ax.max_velocity * 60.0) ** 2 for ax in machine.linear_axes))
-    if feed > fastest_path:
-        raise r.fail("test.feed_mm_per_min",
-                     f"expected a feed the machine can reach (<= {fastest_path:.0f} mm/min from the "
-                     f"axis velocity limits; slowest axis {slowest:.0f} mm/min), got {feed:g}")
+    feed = _feed(r, t, "test.feed_mm_per_min", machine)
     passes = r.strings(t, "test.passes", PASSES)
     for p in passes:
         if p not in PASSES:
@@ -642,7 +656,7 @@ def _test(r: _Reader, root: dict, machine: MachineConfig) -> TestConfig:
                       projection=projection,
                       curve=CurveConfig(amplitude=amplitude, waves_per_sector=waves,
                                         cap_elevation_deg=cap,
-                                        overrides=_overrides(r, c, len(elev), nodes)),
+                                        overrides=_overrides(r, c, len(elev), nodes, machine)),
                       rotary=_rotary(r, t, machine),
                       remeasure=_remeasure(r, t, len(elev), nodes))
 
@@ -671,7 +685,23 @@ def _remeasure(r: _Reader, t: dict, tracks: int, nodes: int) -> tuple[str, ...]:
     return tuple(sorted(out, key=lambda x: (x[0], int(x[1:]))))
 
 
-def _overrides(r: _Reader, c: dict, tracks: int, nodes: int) -> tuple[SectorCurve, ...]:
+def _feed(r: _Reader, t: dict, key: str, machine: MachineConfig, default=None) -> float:
+    """A feed in mm/min the programs can write and the machine can reach."""
+    feed = r.number(t, key, default, gt=0, unit="mm/min")
+    if feed < 1.0:
+        raise r.fail(key, f"expected a feed of at least 1 mm/min (programs write F with 3 "
+                          f"decimals, and a slower test would last days), got {feed:g}")
+    slowest = min(ax.max_velocity for ax in machine.linear_axes) * 60.0
+    fastest_path = math.sqrt(sum((ax.max_velocity * 60.0) ** 2 for ax in machine.linear_axes))
+    if feed > fastest_path:
+        raise r.fail(key, f"expected a feed the machine can reach (<= {fastest_path:.0f} mm/min "
+                          f"from the axis velocity limits; slowest axis {slowest:.0f} mm/min), "
+                          f"got {feed:g}")
+    return feed
+
+
+def _overrides(r: _Reader, c: dict, tracks: int, nodes: int,
+               machine: MachineConfig) -> tuple[SectorCurve, ...]:
     """``[[test.curve.override]]``: one table per re-planned sector."""
     raw = c.get("override", [])
     key = "test.curve.override"
@@ -685,7 +715,8 @@ def _overrides(r: _Reader, c: dict, tracks: int, nodes: int) -> tuple[SectorCurv
     base = key
     for i, o in enumerate(raw, start=1):
         key = f"{base}[{i}]" if len(raw) > 1 else base
-        r.no_unknown(o, key, ("sector", "amplitude", "waves_per_sector", "projection"))
+        r.no_unknown(o, key, ("sector", "amplitude", "waves_per_sector", "projection",
+                              "feed_mm_per_min"))
         sector = _sector_name(r, f"{key}.sector", r.string(o, f"{key}.sector"), tracks, nodes)
         if sector in seen:
             raise r.fail(f"{key}.sector", f"expected each sector at most once, got {sector} twice")
@@ -694,7 +725,8 @@ def _overrides(r: _Reader, c: dict, tracks: int, nodes: int) -> tuple[SectorCurv
             sector,
             r.number(o, f"{key}.amplitude", gt=0, le=1) if "amplitude" in o else None,
             r.integer(o, f"{key}.waves_per_sector", ge=1, le=10) if "waves_per_sector" in o else None,
-            r.string(o, f"{key}.projection", choices=PROJECTIONS) if "projection" in o else None))
+            r.string(o, f"{key}.projection", choices=PROJECTIONS) if "projection" in o else None,
+            _feed(r, o, f"{key}.feed_mm_per_min", machine) if "feed_mm_per_min" in o else None))
     return tuple(sorted(out, key=lambda x: (x.sector[0], int(x.sector[1:]))))
 
 

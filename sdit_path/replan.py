@@ -213,7 +213,8 @@ def _motion_values(cfg: Config, kin: Kinematics, s: Samples, values: dict) -> np
         if not m.any():
             continue
         c = m & cruise
-        v["min_speed_ratio"] = float(s.speed_mm_per_s[c].min() / feed) if c.any() else 1.0
+        own = cfg.test.curve.feed_for(sid, cfg.test.feed_mm_per_min) / 60.0  # its sector's
+        v["min_speed_ratio"] = float(s.speed_mm_per_s[c].min() / own) if c.any() else 1.0
         v["acceleration_ratio"] = float(np.max(np.abs(qdd[m]) / acc_lim))
         v["servo_um_per_ms"] = float(np.sqrt(np.mean(np.max(sens[m], axis=1) ** 2)))
         v["duration_s"] = float(m.sum() * dt)
@@ -427,6 +428,8 @@ def with_overrides(cfg: Config, overrides: dict[str, SectorCurve],
             lines.append(f"waves_per_sector = {o.waves_per_sector}")
         if o.projection is not None:
             lines.append(f'projection = "{o.projection}"')
+        if o.feed_mm_per_min is not None:
+            lines.append(f"feed_mm_per_min = {o.feed_mm_per_min!r}")
         text = text.rstrip("\n") + "\n" + "\n".join(lines) + "\n"
     return parse_config(text, cfg.source)
 

@@ -30,6 +30,7 @@ class Recorder:
     traverses: list = field(default_factory=list)
     dwells: list = field(default_factory=list)
     arcs: list = field(default_factory=list)
+    rates: list = field(default_factory=list)  # (line, mm/min) as each F takes effect
     messages: list = field(default_factory=list)
     line: int = 0
 
@@ -56,6 +57,9 @@ class Recorder:
 
     def dwell(self, seconds):
         self.dwells.append((self.line, seconds))
+
+    def set_feed_rate(self, rate):  # inches per minute (0 in inverse-time mode)
+        self.rates.append((self.line, rate * 25.4))
 
     def get_external_length_units(self):
         return 1.0 / 25.4

@@ -109,6 +109,15 @@ def test_sector_overrides_parse_and_change_only_their_sector(default_text):
     assert curve.for_sector("D", 2, "stereographic") == (1.0, 1, "stereographic")
 
 
+def test_a_sector_override_may_set_its_own_feed(default_text):
+    cfg = parse_config(_with_overrides(default_text, 'sector = "D3"\nfeed_mm_per_min = 300'),
+                       "t.toml")
+    assert cfg.test.curve.feed_for("D3-2", 600.0) == 300.0
+    assert cfg.test.curve.feed_for("D2-2", 600.0) == 600.0
+    assert cfg.test.sector_feeds("D") == (("D3", 300.0),)
+    assert cfg.test.sector_feeds("C") == ()
+
+
 @pytest.mark.parametrize("tables, message", [
     (['sector = "F1"'], r"override.sector: expected a layer letter \(A-E\) and a sector number 1-6"),
     (['sector = "D7"'], "sector number 1-6"),
@@ -118,6 +127,9 @@ def test_sector_overrides_parse_and_change_only_their_sector(default_text):
     (['sector = "D3"\nwaves_per_sector = 0'], "override.waves_per_sector"),
     (['sector = "D3"\nprojection = "conic"'], "expected one of stereographic, vertical"),
     (['sector = "D3"\nfeed = 100'], r"override.feed: unknown key"),
+    (['sector = "D3"\nfeed_mm_per_min = 0.5'], r"override.feed_mm_per_min: expected a feed of at least 1"),
+    (['sector = "D3"\nfeed_mm_per_min = 1e6'], r"override.feed_mm_per_min: expected a feed the machine can reach"),
+    (['sector = "D3"\nfeed_mm_per_min = "slow"'], r"override.feed_mm_per_min: expected a number"),
     (['sector = "D3"', 'sector = "D3"'], r"override\[2\].sector: expected each sector at most once"),
 ])
 def test_bad_sector_overrides_name_the_field(default_text, tables, message):

@@ -75,7 +75,7 @@ def reach_violations(poses: RunPoses, config: Config, kin: Kinematics) -> dict[i
     out: dict[int, list[Violation]] = {}
     margin_lin = config.check.travel_margin_mm
     margin_rot = config.check.angle_margin_rad
-    feed = config.test.feed_mm_per_min / 60.0
+    feed = config.test.run_feed(poses.run.pieces) / 60.0
     q, pts, piece = poses.q, poses.points_mm, poses.piece
     ds = np.diff(poses.s_mm)
     for j, ax in enumerate(kin.axes):

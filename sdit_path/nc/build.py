@@ -125,12 +125,13 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
             continue
         run: Run = item
         label = f"layer {path.layer}"
+        run_f = test.run_feed(run.pieces)  # a re-planned sector at its own feed
         if frame in ("table", "traori") and path_form == "spline":
             rotary = ()
             if frame == "traori":
                 ctrl, carry = rotary_controls(run.curve, track, carry, decimals)
                 rotary = tuple((n, ctrl[n]) for n in rot_names)
-            body.append(SplineMove(run.curve, feed, _knot_interval(run.curve, run),
+            body.append(SplineMove(run.curve, run_f, _knot_interval(run.curve, run),
                                    _labels(run.curve, run), rotary))
             note(run, [p.max_radial_deviation_mm for p in run.pieces])
             current_table = run.curve.control_points_mm[-1]
@@ -140,7 +141,7 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
             ctrl = qcurve.control_points_mm
             xyz_curve = BSplineCurve(qcurve.degree, qcurve.knots, ctrl[:, lin])
             rotary = tuple((n, np.degrees(ctrl[:, kin.index[n]])) for n in rot_names)
-            body.append(SplineMove(xyz_curve, feed, _knot_interval(qcurve, run),
+            body.append(SplineMove(xyz_curve, run_f, _knot_interval(qcurve, run),
                                    _labels(qcurve, run), rotary))
             note(run, devs)
             current_q = ctrl[-1]
@@ -149,8 +150,8 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
                 run, track, carry, hemi.centre_mm, hemi.radius_mm, chord_tol, decimals,
                 current_q, label)
             rotary = tuple((n, np.degrees(q[:, kin.index[n]])) for n in rot_names)
-            body.append(PolylineMove(q[:, lin], feed, labels, rotary,
-                                     feed / np.maximum(lengths, 1e-9)))
+            body.append(PolylineMove(q[:, lin], run_f, labels, rotary,
+                                     run_f / np.maximum(lengths, 1e-9)))
             note(run, devs)
             current_q = q[-1]
         else:  # table-frame chords
@@ -167,7 +168,7 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
                 points.append(verts)
                 current_table = verts[-1]
                 deviation[piece.id] = max(deviation.get(piece.id, 0.0), dev)
-            body.append(PolylineMove(np.vstack(points), feed, tuple(labels)))
+            body.append(PolylineMove(np.vstack(points), run_f, tuple(labels)))
 
     layer = next(la for la in hemi.layers if la.name == path.base_layer)
     worst_um = max(deviation.values()) * 1e3
@@ -194,7 +195,10 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
         f"sphere centre (pivot ball) X{c[0]:.{decimals}f} Y{c[1]:.{decimals}f} "
         f"Z{c[2]:.{decimals}f} in {post.work_offset}, radius {hemi.radius_mm:g} mm (bar length)",
         "programmed point = spindle ball centre: tool length offset of the ballbar cup active",
-        f"feed {feed:g} mm/min (G94), dwell {test.dwell_s:g} s at every static node",
+        f"feed {test.feed_mm_per_min:g} mm/min (G94)"
+        + "".join(f", sector {sec} at {f:g}" for sec, f in test.sector_feeds(layer.name)
+                  if sec in {sid.split("-")[0] for sid in path.segment_order()})
+        + f", dwell {test.dwell_s:g} s at every static node",
         form,
         f"segments {order[0] if path.remeasure else layer.segments[0].id}.."
         f"{order[-1] if path.remeasure else layer.segments[-1].id}, passes "

@@ -217,7 +217,7 @@ class Timer:
 
     def run_windows(self, geo: RunGeometry, carry: float | None,
                     param: RunParameter | None = None, step_mm: float = 0.1,
-                    window_mm: float = 2.0, per_knot: int = 16
+                    window_mm: float = 2.0, per_knot: int = 16, feed: float | None = None
                     ) -> tuple[list[tuple[float, Budget]], float | None]:
         """The run cut into windows of about ``window_mm`` of its parameter (``param``,
         by default the ball's arc length), each with its own budget (from the axis
@@ -229,7 +229,9 @@ class Timer:
         derivatives away (a crest with a 0.35 mm radius was under-read by half).  The
         feed caps the parameter's speed at ``feed / max ds/dsigma`` in each window,
         with the largest step of ``ds/dsigma`` between grid points added so that the
-        ball keeps within the feed between them too."""
+        ball keeps within the feed between them too.  ``feed``: the run's own (mm/s;
+        by default the timer's)."""
+        feed = self.feed if feed is None else feed
         param = param or RunParameter(geo.length_mm)
         length = param.length_mm
         intervals = len(geo.curve.interval_knots) - 1
@@ -247,7 +249,7 @@ class Timer:
             sl = slice(max(a - 1, 0), min(b + 2, n + 1))  # one grid point of overlap
             ball_per_param = ds[sl].max() + np.abs(np.diff(ds[sl])).max(initial=0.0)
             bud = budget(d1[sl], d2[sl], d3[sl], self.v_lim, self.a_lim, self.j_lim,
-                         self.kin.names, self.feed / ball_per_param)
+                         self.kin.names, feed / ball_per_param)
             span = x[b] - x[a]
             if windows and _same(windows[-1][1], bud):
                 prev_len, prev = windows[-1]
@@ -256,8 +258,8 @@ class Timer:
                 windows.append((span, bud))
         return windows, carry_out
 
-    def time_run(self, geo: RunGeometry, carry: float | None, label: str
-                 ) -> tuple[ChainProfile, RunParameter, float | None]:
+    def time_run(self, geo: RunGeometry, carry: float | None, label: str,
+                 feed: float | None = None) -> tuple[ChainProfile, RunParameter, float | None]:
         """A run's profile, the parameter it runs along, and the azimuth carry after it.
 
         It is timed along the ball's arc length; where something other than the feed
@@ -268,12 +270,12 @@ class Timer:
         follows ``ds/dsigma`` window by window: where the feed alone binds, the ball's
         arc length is as quick and cheaper to plan."""
         param = RunParameter(geo.length_mm)
-        windows, carry_out = self.run_windows(geo, carry, param)
+        windows, carry_out = self.run_windows(geo, carry, param, feed=feed)
         prof = plan_chain(windows, label)
         if self._weights is None or all(b.binding == "feed" for _, b in windows):
             return prof, param, carry_out
         axis_path = self.parameter(geo, carry)
-        other_windows = self.run_windows(geo, carry, axis_path)[0]
+        other_windows = self.run_windows(geo, carry, axis_path, feed=feed)[0]
         if _cap_time(other_windows) >= _cap_time(windows):
             return prof, param, carry_out
         other = plan_chain(other_windows, label)
@@ -307,8 +309,12 @@ class Timer:
                 t += item.seconds
             elif isinstance(item, Run):
                 geo = RunGeometry(item)
+                # a sector re-planned at its own feed runs at it
+                own = self.config.test.run_feed(item.pieces, self.feed * 60.0)
+                feed = self.feed if own == self.feed * 60.0 else own / 60.0
                 prof, param, carry_out = self.time_run(geo, carry,
-                                                       f"layer {path.layer}, {item.pieces[0].id}")
+                                                       f"layer {path.layer}, {item.pieces[0].id}",
+                                                       feed)
                 items.append(TimedRun(geo, prof, t, carry, param))
                 end = item.curve.control_points_mm[-1][None, :]
                 last_angles = {k: float(v[0]) for k, v in self.schedule.angles(end, carry)[0].items()}

@@ -115,6 +115,46 @@ def test_overrides_replace_earlier_ones_for_the_same_sector(bad_plan):
     assert new.text.count("[[test.curve.override]]") == 1
 
 
+def test_a_sector_at_its_own_feed_runs_at_it_in_every_program(bad_plan, tmp_path):
+    """``feed_mm_per_min`` in a sector's override: its curves are timed and programmed at
+    that feed (both controllers; the LinuxCNC interpreter takes it and the test's feed
+    back after), the transits and other sectors at the test's, and the config written by
+    replan carries it."""
+    from conftest import have_linuxcnc
+    from sdit_path.config import SectorCurve
+
+    cfg = load_plan(bad_plan / "plan").config
+    slow = with_overrides(cfg, {"A2": SectorCurve("A2", feed_mm_per_min=400.0)})
+    assert 'feed_mm_per_min = 400.0' in slow.text
+    (tmp_path / "slow.toml").write_text(slow.text)
+    r = cli("plan", str(tmp_path / "slow.toml"), "--out", str(tmp_path / "plan"), "-q")
+    assert r.returncode == 0, r.stderr
+    plan = load_plan(tmp_path / "plan")
+    s = plan.trajectory("GOLD_A")
+    top = {sid: float(s.speed_mm_per_s[s.segment == sid].max()) for sid in
+           ("A1-1", "A1-2", "A2-1", "A2-2", "A3-1", "A3-2")}
+    for sid, v in top.items():
+        assert v == pytest.approx((400.0 if sid.startswith("A2") else 1000.0) / 60.0, rel=1e-6), sid
+    mpf = (tmp_path / "plan" / "sinumerik840d" / "GOLD_A.MPF").read_text().splitlines()
+    label = None
+    seen = {}
+    for line in mpf:
+        if line.startswith("; A") and "-" in line:
+            label = line[2:].strip()
+        if line.startswith("BSPLINE"):
+            seen.setdefault(label, set()).add(line.rsplit(" F", 1)[1])
+    assert seen["A2-1"] == {"400"} and seen["A1-1"] == {"1000"} and seen["A3-1"] == {"1000"}
+    assert "sector A2 at 400" in "\n".join(mpf[:10])
+    if have_linuxcnc():
+        from linuxcnc_oracle import interpret, ok
+
+        result, message, rec = interpret(str(tmp_path / "plan" / "linuxcnc" / "GOLD_A.ngc"))
+        assert ok(result), message
+        rates = [round(v, 6) for _, v in rec.rates if v > 0]
+        # the test's feed, A2's on the way out, back, A2's on the way back, back
+        assert rates == [1000.0, 400.0, 1000.0, 400.0, 1000.0]
+
+
 def test_remeasure_program_runs_only_the_replanned_sector_from_and_back_to_a1(replanned):
     """The short program per affected layer: from A-1 along the track to the sector's
     node, the sector forward and back, and home; the same lint, on-sphere read-back and
