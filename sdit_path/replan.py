@@ -118,7 +118,8 @@ class Candidate:
         c = self.curve
         return ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in
                          (("amplitude", c.amplitude), ("waves", c.waves_per_sector),
-                          ("projection", c.projection)) if v is not None)
+                          ("projection", c.projection), ("feed", c.feed_mm_per_min))
+                         if v is not None) + (" mm/min" if c.feed_mm_per_min is not None else "")
 
 
 #: the model the information is measured with: the one ``analyse`` identifies by
@@ -457,15 +458,31 @@ def _drop_table(text: str, name: str) -> str:
     return "".join(p for p in _tables(text) if not header.match(p))
 
 
-def candidates_for(cfg: Config, sector: str) -> list[SectorCurve]:
+#: reasons a lower feed answers (the curve as it is, slower): lag errors grow with the
+#: speed, accelerations with its square, a rotary rate with it
+DYNAMIC = ("servo_sensitivity", "acceleration", "rotary_rate")
+#: the sector's feed is tried at these fractions where a reason is dynamic
+FEED_FRACTIONS = (0.7, 0.5)
+
+
+def candidates_for(cfg: Config, sector: str, kinds: set[str] = frozenset()) -> list[SectorCurve]:
+    """The curves tried for ``sector`` (each keeps the sector's own feed, if it has one);
+    where one of ``kinds`` is dynamic, also the curve as it is at lower feeds."""
     now = cfg.test.curve.for_sector(sector[0], int(sector[1:]), cfg.test.projection)
+    feed = _current(cfg).get(sector, SectorCurve(sector)).feed_mm_per_min
     out = []
     for proj in dict.fromkeys((cfg.test.projection, "stereographic", "vertical")):
         for amp in AMPLITUDES:
             for waves in WAVES:
                 if (amp, waves, proj) == now:
                     continue
-                out.append(SectorCurve(sector, amp, waves, proj))
+                out.append(SectorCurve(sector, amp, waves, proj, feed))
+    if kinds & set(DYNAMIC):
+        base = cfg.test.curve.feed_for(f"{sector}-1", cfg.test.feed_mm_per_min)
+        for k in FEED_FRACTIONS:
+            f = float(max(1.0, round(base * k)))
+            if f < base:
+                out.append(SectorCurve(sector, *now, f))
     return out
 
 
@@ -480,7 +497,7 @@ def choose(cfg: Config, rev: Review, sector: str, reasons: list[Reason], travel:
     kinds = {r.kind for r in reasons}
     seg_ids = [sid for sid in base.values if sector_of(sid) == sector]
     out = []
-    for curve in [None] + candidates_for(cfg, sector):
+    for curve in [None] + candidates_for(cfg, sector, kinds):
         if on_step:
             on_step(f"trying {sector}: {Candidate(sector, curve, base).label}")
         if curve is None:

@@ -155,6 +155,40 @@ def test_a_sector_at_its_own_feed_runs_at_it_in_every_program(bad_plan, tmp_path
         assert rates == [1000.0, 400.0, 1000.0, 400.0, 1000.0]
 
 
+def test_a_sector_run_too_fast_is_named_for_its_servo_sensitivity_and_slowed(bad_plan):
+    """A sector made bad on purpose by its feed (A2 at 2500 of 1000 mm/min): a 1 ms lag
+    reads 2.7 times the plan's median there.  Its reason is named, the candidates hold
+    the curve as it is at lower feeds, and the slowest clears the reason: the lag's
+    reading falls with the speed (half the feed, half the reading)."""
+    from sdit_path.config import SectorCurve
+    from sdit_path.interference.scene import Scene
+    from sdit_path.machine.kinematics import Kinematics
+    from sdit_path.replan import (_with_information, candidates_for, evaluate_layer, judge,
+                                  servo_median)
+
+    plan = load_plan(bad_plan / "plan")
+    cfg = with_overrides(plan.config, {"A2": SectorCurve("A2", waves_per_sector=1,
+                                                         feed_mm_per_min=2500.0)})
+    travel = plan.tested_travel()
+    kin = Kinematics(cfg.machine)
+    scene = Scene(cfg, kin)
+    rev = review(cfg, travel, kin=kin, scene=scene)
+    assert {sid: [r.kind for r in rs] for sid, rs in rev.reasons.items()} == {
+        "A2-1": ["servo_sensitivity"], "A2-2": ["servo_sensitivity"]}
+    slower = [c for c in candidates_for(cfg, "A2", {"servo_sensitivity"})
+              if c.feed_mm_per_min is not None and c.feed_mm_per_min < 2500.0]
+    assert [c.feed_mm_per_min for c in slower] == [1750.0, 1250.0]
+    assert all((c.amplitude, c.waves_per_sector) == (1.0, 1) for c in slower)
+    assert not [c for c in candidates_for(cfg, "A2", {"speed_dip"})
+                if c.feed_mm_per_min != 2500.0]
+    ev = evaluate_layer(with_overrides(cfg, {"A2": slower[-1]}), "A", travel, kin, scene)
+    values = _with_information({**rev.layers, "A": ev}, rev.directions)
+    after = {sid: values[sid] for sid in ("A2-1", "A2-2")}
+    assert judge(cfg, after, Limits(), servo_median(rev.values)) == {}
+    ratio = after["A2-1"]["servo_um_per_ms"] / rev.values["A2-1"]["servo_um_per_ms"]
+    assert 0.45 < ratio < 0.55
+
+
 def test_remeasure_program_runs_only_the_replanned_sector_from_and_back_to_a1(replanned):
     """The short program per affected layer: from A-1 along the track to the sector's
     node, the sector forward and back, and home; the same lint, on-sphere read-back and
