@@ -1,13 +1,16 @@
 """Simulated end to end check of ``sdit-path replan`` (issue 17): a plan with a sector
-made bad on purpose (``golden_small`` with eight waves in sector A2 at F1000, where the
-curvature caps the speed) and its re-planned version are recorded by ``perturb`` with the
+made bad on purpose (``golden_small`` at F1000 with, ``--case curvature``, eight waves in
+sector A2, where the curvature caps the speed, or, ``--case feed``, sector A2 run at
+2500 mm/min, where a lag reads 2.7 times the plan's median) and its re-planned version
+are recorded by ``perturb`` with the
 same hidden geometry (linear order 1 + squareness, random per trial), the same servo
 mismatch and set-up, and identified (``identify``, geometry only: what a user without a
 dynamics model gets).  Printed per plan over the seeded trials: how far the determined
 combinations are from the truth in their own standard uncertainties and in their units,
 and how large those uncertainties are.
 
-    python bench/replan_check.py [--trials 6] [--seed 1] [--work DIR] [--mismatch-ms 1.0]
+    python bench/replan_check.py [--case curvature|feed] [--trials 6] [--seed 1] [--work DIR]
+                                [--mismatch-ms 1.0]
 """
 
 from __future__ import annotations
@@ -26,7 +29,8 @@ sys.path.insert(0, str(HERE))
 
 from analyse_blind import geometry, hidden_model  # noqa: E402
 
-BAD = '\n[[test.curve.override]]\nsector = "A2"\nwaves_per_sector = 8\n'
+BAD = {"curvature": '\n[[test.curve.override]]\nsector = "A2"\nwaves_per_sector = 8\n',
+       "feed": '\n[[test.curve.override]]\nsector = "A2"\nfeed_mm_per_min = 2500.0\n'}
 
 
 def cli(*args) -> subprocess.CompletedProcess:
@@ -78,11 +82,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--work")
     ap.add_argument("--mismatch-ms", type=float, default=1.0)
+    ap.add_argument("--case", choices=sorted(BAD), default="curvature")
     a = ap.parse_args()
     work = Path(a.work or tempfile.mkdtemp(prefix="replan-check-"))
     work.mkdir(parents=True, exist_ok=True)
     cfg = work / "bad.toml"
-    cfg.write_text((HERE.parent / "tests/data/golden_small.toml").read_text() + BAD)
+    cfg.write_text((HERE.parent / "tests/data/golden_small.toml").read_text() + BAD[a.case])
     plans = {"as planned": work / "plan", "re-planned": work / "replanned"}
     if not (work / "plan" / "plan.json").is_file():
         must(cli("plan", str(cfg), "--out", str(work / "plan"), "-q"))
