@@ -1,18 +1,21 @@
 """Diagnosis speed on a one-hour trace at 1 kHz (3.6 million samples).
 
-    python bench/bench_diagnose.py [--plan DIR]
+    python bench/bench_diagnose.py [--plan DIR] [--feed F] [--config TOML --program NAME]
 
 Plans layer A of the default 3-axis sample at F37 (about an hour with its dwells),
 makes a measured trace with hidden effects (set-up offset, servo lag, backlash;
 seeded), then times what ``sdit-path diagnose --json`` does: read the plan and the
 trace file, align, localise, explain, report.  Prints the ratio of the trace's
-duration to the diagnosis time (target >= 60: an hour in at most a minute).
+duration to the diagnosis time (target >= 60: an hour in at most a minute).  With
+``--config`` and ``--program``, another config's program at ``--feed`` (the suite's
+smoke test: a small config, so that it stays short).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import re
 import subprocess
 import sys
 import tempfile
@@ -40,14 +43,18 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--plan", type=Path, default=None, help="Reuse a plan made at F37.")
     ap.add_argument("--feed", type=float, default=37.0)
+    ap.add_argument("--config", type=Path, default=None,
+                    help="Plan this config instead of the bundled 3-axis sample.")
+    ap.add_argument("--program", default=PROGRAM)
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         plan_dir = args.plan
         if plan_dir is None:
             cfg = tmp / "hour.toml"
-            cfg.write_text(sample_path("vmc_3axis.toml").read_text().replace(
-                "feed_mm_per_min = 600.0", f"feed_mm_per_min = {args.feed}"))
+            text = (args.config or sample_path("vmc_3axis.toml")).read_text()
+            cfg.write_text(re.sub(r"(?m)^feed_mm_per_min\s*=\s*[0-9.eE+-]+",
+                                  f"feed_mm_per_min = {args.feed}", text, count=1))
             t0 = time.perf_counter()
             subprocess.run([sys.executable, "-c", "from sdit_path.cli import main; main()", "plan",
                             str(cfg), "--out", str(tmp / "plan"), "--force", "-q"], check=True)
@@ -55,10 +62,11 @@ def main() -> None:
             plan_dir = tmp / "plan"
         plan = load_plan(plan_dir)
         model = load_error_set("paper_table2")
-        ctx = build_context(plan, PROGRAM)
+        program = args.program
+        ctx = build_context(plan, program)
         rng = np.random.default_rng([7, 11])
         hidden = [draw_effect(n, rng, ctx) for n in ("setup_offset", "servo_lag", "backlash")]
-        trace, _truth = perturb(plan, PROGRAM, model, hidden, draw_recording(7), 7, ctx)
+        trace, _truth = perturb(plan, program, model, hidden, draw_recording(7), 7, ctx)
         path = tmp / "hour.csv"
         path.write_text(measured_csv(trace))
         del ctx, trace, plan
@@ -67,7 +75,7 @@ def main() -> None:
         plan = load_plan(plan_dir)
         measured = read_trace(path)
         t_read = time.perf_counter() - t0
-        result = diagnose(plan, PROGRAM, measured, model)
+        result = diagnose(plan, program, measured, model)
         report = json.dumps(to_json(result))
         summary_text(result)
         seconds = time.perf_counter() - t0
