@@ -739,22 +739,24 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                     # such a sliver does to the information criterion
                     # (and, the other way, more columns must bring that much)
                     extra = C_tr.shape[1] - cols_tr[i].shape[1]
+                    C_ho = eff.columns(ctx, S_ho, nl)[0] if extra > 0 else None
                     if extra < 0:
                         ok = dbic > 0 or (rss - rss_full) / len(tr) < _heldout_need(
                             opt, rss / len(tr), noise, cols_ho[i])
                     elif extra > 0:
                         ok = dbic > 0 and (rss_full - rss) / len(tr) >= _heldout_need(
-                            opt, rss_full / len(tr), noise, eff.columns(ctx, S_ho, nl)[0])
+                            opt, rss_full / len(tr), noise, C_ho)
                     else:
                         ok = dbic > 0
                     score = (ok, dbic)
-                    if not score[0] or (best is not None and score <= best[0]):
+                    if not ok or (best is not None and score <= best[0]):
                         continue
                     coef = beta[A_rest.shape[1]:]
                     if not eff.physical(coef) or eff.implausible(
                             eff.parameters(coef, labels, nl, ctx)):
                         continue
-                    C_ho, _ = eff.columns(ctx, S_ho, nl)
+                    if C_ho is None:
+                        C_ho = eff.columns(ctx, S_ho, nl)[0]
                     new_ho = y_ho - np.column_stack([B_rest, C_ho]) @ beta
                     # held-out data refuse the exchange when the finding it replaces,
                     # added back, would pass their test: an equal fit with fewer
