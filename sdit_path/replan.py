@@ -857,6 +857,11 @@ def pictures(r: Replan) -> dict[str, bytes]:
                 k = np.flatnonzero(m)[len(np.flatnonzero(m)) // 2]
                 ax.annotate(f"{sid}: " + ", ".join(x.kind for x in rs), (x[k], y[k]), fontsize=7,
                             color="tab:red", xytext=(4, 4), textcoords="offset points")
+        # what was chosen per sector: a feed alone leaves the curve where it was
+        chosen = [f"{sec}: {c.label}" for sec, c in sorted(r.chosen.items()) if sec[0] == name]
+        if chosen:
+            ax.text(0.01, 0.01, "chosen - " + "; ".join(chosen), transform=ax.transAxes,
+                    fontsize=7, color="tab:blue", va="bottom")
         ax.set_aspect("equal")
         ax.set_title(f"layer {name}: curves as planned (grey) and re-planned (blue); bad "
                      f"segments in red", fontsize=9)
