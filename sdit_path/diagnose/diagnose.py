@@ -235,7 +235,11 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
         return _explain(ctx, [e for e in lib if e.name in names], expected, t_m, y_fit, al,
                         options, step, mimic_library=lib, geometry=geometry, pinned=pinned)
 
-    result = explain(names, al, jump, profiled(first.findings))
+    # the bar length is judged again at the settled timing: at the first timing a
+    # position-locked effect (a scale error at the clock's edge) may have stood in for it
+    # and the first pass named only what helped there (SDIT_B case 43: a cyclic error
+    # left behind a spurious scale error)
+    result = explain(names | {"bar_length"}, al, jump, profiled(first.findings))
     kept = {f.effect for f in result.findings}
     if kept != names and any(by[f.effect].timing_parameter for f in result.findings):
         # a lag kept without what it shared the first timing with (a contour smoothing
