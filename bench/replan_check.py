@@ -7,7 +7,9 @@ same hidden geometry (linear order 1 + squareness, random per trial), the same s
 mismatch and set-up, and identified (``identify``, geometry only: what a user without a
 dynamics model gets).  Printed per plan over the seeded trials: how far the determined
 combinations are from the truth in their own standard uncertainties and in their units,
-and how large those uncertainties are.
+how large those uncertainties are, and the bias the mismatch alone brings (the same
+recordings - same noise seed, set-up and instrument - made without it and identified:
+the difference isolates the dynamics from the noise).
 
     python bench/replan_check.py [--case curvature|feed] [--trials 6] [--seed 1] [--work DIR]
                                 [--mismatch-ms 1.0]
@@ -42,7 +44,24 @@ def must(r: subprocess.CompletedProcess) -> None:
         sys.exit(r.stderr.strip()[-500:])
 
 
+def _identify(plan: Path, d: Path, name: str, inst: dict, hidden: Path, setup: str,
+              mismatch_ms: float, seed: int) -> dict:
+    args = ["identify", "--plan", str(plan), "--json", str(d / f"{name}.json")]
+    for prog, (lead, ppm, noise) in inst.items():
+        f = d / f"{name}_{prog}.csv"
+        must(cli("perturb", "--plan", str(plan), "--program", prog, "--model", str(hidden),
+                 "--effect", setup, "--effect", f"servo_mismatch:axis=X,extra_lag_ms={mismatch_ms}",
+                 "--lead-s", f"{lead:.3f}", "--clock-ppm", f"{ppm:.2f}",
+                 "--noise-um", f"{noise:.3f}", "--seed", str(seed), "--out", str(f), "-q"))
+        args += ["--trace", str(f), "--program", prog]
+    must(cli(*args))
+    return json.loads((d / f"{name}.json").read_text())
+
+
 def trial(k: int, seed: int, plans: dict, work: Path, mismatch_ms: float) -> dict:
+    """One seeded trial: per plan, the recordings with the servo mismatch and the same
+    recordings (same noise, set-up, instrument) without it; the difference of the two
+    identifications is the bias the mismatch alone brings."""
     rng = np.random.default_rng([seed, k, 17])
     d = work / f"trial{k}"
     d.mkdir(parents=True, exist_ok=True)
@@ -52,27 +71,29 @@ def trial(k: int, seed: int, plans: dict, work: Path, mismatch_ms: float) -> dic
              f"dz_um={rng.normal(0, 8):.3f}")
     inst = {p: (rng.uniform(1, 15), rng.uniform(-120, 120), rng.uniform(0.1, 0.3))
             for p in ("GOLD_A", "GOLD_B")}
+    noise_seed = int(rng.integers(1, 2**31))
     out = {}
     for which, plan in plans.items():
-        args = ["identify", "--plan", str(plan), "--json", str(d / f"{which}.json")]
-        for prog, (lead, ppm, noise) in inst.items():
-            f = d / f"{which}_{prog}.csv"
-            must(cli("perturb", "--plan", str(plan), "--program", prog, "--model",
-                     str(d / "hidden.toml"), "--effect", setup, "--effect",
-                     f"servo_mismatch:axis=X,extra_lag_ms={mismatch_ms}",
-                     "--lead-s", f"{lead:.3f}", "--clock-ppm", f"{ppm:.2f}",
-                     "--noise-um", f"{noise:.3f}", "--out", str(f), "-q"))
-            args += ["--trace", str(f), "--program", prog]
-        must(cli(*args))
-        rep = json.loads((d / f"{which}.json").read_text())
-        errs, zs, stds = [], [], []
-        for c in rep["combinations"]:
+        tag = which.replace(" ", "_").replace("-", "")
+        rep = _identify(plan, d, tag, inst, d / "hidden.toml", setup, mismatch_ms, noise_seed)
+        ref = _identify(plan, d, tag + "_nodyn", inst, d / "hidden.toml", setup, 0.0, noise_seed)
+        errs, zs, stds, bias, bz = [], [], [], [], []
+        same = [(c["terms"], c2["terms"]) for c, c2 in zip(rep["combinations"], ref["combinations"])]
+        paired = len(rep["combinations"]) == len(ref["combinations"]) and all(
+            [t["parameter"] for t in a] == [t["parameter"] for t in b] for a, b in same)
+        for i, c in enumerate(rep["combinations"]):
             value = sum(t["coefficient"] * truth.get(t["parameter"], 0.0) for t in c["terms"])
             errs.append(abs(c["estimate"] - value))
             zs.append(errs[-1] / c["std"])
             stds.append(c["std"])
+            if paired:
+                # the same direction in both (the plan decides it); what the mismatch moved
+                c0 = ref["combinations"][i]
+                b = abs(c["estimate"] - c0["estimate"])
+                bias.append(b)
+                bz.append(b / c["std"])
         out[which] = {"combinations": len(zs), "z": zs, "err": errs, "std": stds,
-                      "noise_um": rep["noise_std_um"]}
+                      "bias": bias, "bias_z": bz, "noise_um": rep["noise_std_um"]}
     return out
 
 
@@ -98,12 +119,12 @@ def main() -> None:
     print(f"sector A2: {rep['sectors'][0]['chosen']}; information "
           f"{rep['information_nats']['before']:.3f} -> {rep['information_nats']['after']:.3f} nats; "
           f"cycle {rep['cycle_s']['before']:.1f} -> {rep['cycle_s']['after']:.1f} s")
-    rows = {w: {"z": [], "err": [], "std": [], "rank": []} for w in plans}
+    rows = {w: {"z": [], "err": [], "std": [], "rank": [], "bias": [], "bias_z": []} for w in plans}
     for k in range(a.trials):
         res = trial(k, a.seed, plans, work, a.mismatch_ms)
         line = []
         for w, r in res.items():
-            for key in ("z", "err", "std"):
+            for key in ("z", "err", "std", "bias", "bias_z"):
                 rows[w][key] += r[key]
             rows[w]["rank"].append(r["combinations"])
             line.append(f"{w}: {r['combinations']} combos, max z {max(r['z'], default=0):.2f}, "
@@ -116,6 +137,13 @@ def main() -> None:
         print(f"  {w:11}: combinations per trial {sorted(set(r['rank']))}; error / std: median "
               f"{np.median(z):.2f}, max {z.max():.2f}, within 3 std {int((z <= 3).sum())}/{len(z)}; "
               f"median error {np.median(r['err']):.4f}; median std {np.median(r['std']):.4f}")
+        if r["bias"]:
+            b, bz = np.array(r["bias"]), np.array(r["bias_z"])
+            print(f"  {'':11}  bias from the mismatch alone (same recordings without it): "
+                  f"median {np.median(b):.4f}, RMS {np.sqrt(np.mean(b ** 2)):.4f}, "
+                  f"in std median {np.median(bz):.2f} max {bz.max():.2f} ({len(b)} combinations)")
+        else:
+            print(f"  {'':11}  bias from the mismatch alone: not paired (the combinations differ)")
 
 
 if __name__ == "__main__":

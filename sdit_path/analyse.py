@@ -14,8 +14,6 @@ the same poses.
 from __future__ import annotations
 
 import math
-import multiprocessing
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +29,7 @@ from .errormodel.errorset import ErrorSet
 from .errormodel.model import ModelOptions
 from .errors import ConfigError, RecordingError
 from .identify.identify import ExtraGroup, identify
+from .parallel import default_jobs, each
 from .planfiles import PlanFiles
 from .sim.simulate import Trace
 
@@ -225,67 +224,6 @@ DIAGNOSIS = DiagnosisOptions(max_rate_hz=500.0, max_fit_samples=40_000)
 
 #: the job the pool's workers run (set before the pool forks, so that the workers
 #: share the plan, the recordings and the contexts built so far without copying them)
-_JOB = None
-
-
-def _run(k: int):
-    try:
-        return True, _JOB(k)
-    except Exception as exc:  # handed back whole: the parent raises it
-        return False, (type(exc), str(exc), dict(exc.__dict__))
-
-
-def _reraise(failure):
-    cls, text, state = failure
-    exc = cls.__new__(cls)
-    Exception.__init__(exc, text)
-    exc.__dict__.update(state)
-    raise exc
-
-
-def default_jobs() -> int:
-    """Worker processes for the per-recording stages: one per core."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:
-        return max(1, os.cpu_count() or 1)
-
-
-def _each(job, labels: list[str], jobs: int, step, what: str,
-          sizes: list[float] | None = None) -> list:
-    """``job(k)`` for every recording, in ``jobs`` worker processes (forked: everything
-    built so far is shared), the results in the recordings' order; with ``sizes`` (the
-    work each takes, roughly), the largest are started first, so that no worker is left
-    with a long one at the end.  The progress names each recording as its turn comes.
-    BLAS runs one thread per process throughout the analysis, so the result does not
-    depend on how many workers there are (the same bytes with one or with many)."""
-    global _JOB
-    jobs = min(jobs, len(labels))
-    if jobs <= 1 or "fork" not in multiprocessing.get_all_start_methods():
-        out = []
-        for k, label in enumerate(labels):
-            step(what.format(label=label))
-            out.append(job(k))
-        return out
-    order = list(range(len(labels)))
-    if sizes:
-        order.sort(key=lambda k: -sizes[k])
-    _JOB = job
-    out: list = [None] * len(labels)
-    try:
-        with multiprocessing.get_context("fork").Pool(jobs) as pool:
-            step(what.format(label=labels[order[0]]))
-            for i, (ok, value) in enumerate(pool.imap(_run, order)):
-                if i:  # the first is announced as the pool starts
-                    step(what.format(label=labels[order[i]]))
-                if not ok:
-                    _reraise(value)
-                out[order[i]] = value
-    finally:
-        _JOB = None
-    return out
-
-
 def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
             options: ModelOptions, step=lambda msg: None, note=lambda msg: None,
             jobs: int = 1) -> tuple[dict, list]:
@@ -301,7 +239,7 @@ def _analyse(plan, recordings, options, step, note, jobs):
     used: dict[str, str] = {}
     contexts: dict = {}
     labels = [label for label, _, _ in recordings]
-    matched = _each(lambda k: match(plan, recordings[k][2], recordings[k][0], recordings[k][1],
+    matched = each(lambda k: match(plan, recordings[k][2], recordings[k][0], recordings[k][1],
                                     contexts),
                     labels, jobs, step, "matching and aligning {label}",
                     sizes=[float(len(trace.t_s)) for _, _, trace in recordings])
@@ -331,7 +269,7 @@ def _analyse(plan, recordings, options, step, note, jobs):
         # the effect columns on the trajectory grid: made where the context's caches are
         return d, effect_columns(plan, d, options, ctx)
 
-    results = _each(diagnosed, labels, jobs, step, "diagnosing {label}",
+    results = each(diagnosed, labels, jobs, step, "diagnosing {label}",
                     sizes=[float(len(rec.trace.t_s)) for _, _, rec, _ in first])
     done: list[Analysed] = []
     columns = []

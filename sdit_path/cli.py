@@ -357,11 +357,12 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
     import json
     from pathlib import Path
 
-    from .analyse import aligned_csv, analyse, default_jobs, file_stem, summary_text
+    from .analyse import aligned_csv, analyse, file_stem, summary_text
     from .diagnose.report import pictures
     from .errormodel.model import ModelOptions
     from .errors import ConfigError
     from .output import check_output, write_tree
+    from .parallel import default_jobs
     from .planfiles import load_plan
     from .sim.traceio import read_trace
 
@@ -417,8 +418,11 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Folder for the re-planned plan, replan.json and replan.txt.")
 @click.option("--force", is_flag=True, help="Replace an earlier replan output in --out.")
+@click.option("--jobs", default=None, type=click.IntRange(1, 64),
+              help="Worker processes for the candidate curves (default: one per core); "
+                   "the output is the same for any number.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress and no summary.")
-def replan_command(plan_dir, segments, analysis_file, out_dir, force, quiet) -> None:
+def replan_command(plan_dir, segments, analysis_file, out_dir, force, jobs, quiet) -> None:
     """Find a plan's bad segments, say why, re-plan their sectors and write the
     re-planned plan (the config carries the new curves as overrides)."""
     import json
@@ -426,6 +430,7 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, quiet) -> 
 
     from .errors import ConfigError
     from .output import check_output, write_tree
+    from .parallel import default_jobs
     from .pipeline import plan, step_count
     from .planfiles import load_plan
     from .replan import analysis_reasons, pictures, replan, report_json, report_text
@@ -445,7 +450,8 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, quiet) -> 
                    *((analysis_file,) if analysis_file else ()))
         check_output(out_dir, force, "replan", protect)
         with _Steps(quiet, None, "reviewing the plan") as step:
-            result = replan(old, list(segments) or None, on_step=step.note, measured=measured)
+            result = replan(old, list(segments) or None, on_step=step.note, measured=measured,
+                            on_stage=step, jobs=jobs or default_jobs())
             step("planning with the chosen curves")
             # segments the plan left out as infeasible (--skip-infeasible) stay out
             # when no curve made them feasible

@@ -27,6 +27,9 @@ TRANSITS = ("meridian", "none")
 PROJECTIONS = ("stereographic", "vertical")
 AXIS_NAMES = ("X", "Y", "Z", "A", "B", "C")
 SCHEDULES = ("locked", "moving")
+#: the largest tilt offset a sector may take (deg): beyond it the table tilts far from
+#: the schedule the rest of the test holds, and the patch's boundary slopes grow steep
+TILT_OFFSET_MAX_DEG = 30.0
 SHAPES = ("box", "cylinder", "capsule", "sphere", "mesh")
 FIVE_AXIS_MODES = ("traori", "machine")
 #: Default direction of an axis by name and by the branch carrying it.
@@ -152,13 +155,19 @@ class SectorCurve:
     waves and projection (None: the test's).  Every curve keeps the sector's nodes on
     the lower track with zero slope there, so any values stay tangent-continuous with
     the neighbours.  ``feed_mm_per_min``: the sector's curves run at their own feed
-    (the transits and the other sectors at the test's)."""
+    (the transits and the other sectors at the test's).  ``tilt_offset_deg`` (the
+    ``moving`` rotary schedule only): the tilt axis leaves its schedule by up to this
+    angle over the sector's patch, ``offset * sin^2(pi a) * sin^2(pi e)`` with ``a`` and
+    ``e`` the fractions of the patch's azimuth and elevation spans: a function of the
+    ball's place alone (every stage computes the same angles), zero with zero slope on
+    the patch's boundary (the nodes, the tracks, the neighbours)."""
 
     sector: str  # layer and 1-based sector, e.g. "D3"
     amplitude: float | None = None
     waves_per_sector: int | None = None
     projection: str | None = None
     feed_mm_per_min: float | None = None
+    tilt_offset_deg: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -651,13 +660,15 @@ def _test(r: _Reader, root: dict, machine: MachineConfig) -> TestConfig:
     if not elev[-1] < cap < 90:
         raise r.fail("test.curve.cap_elevation_deg",
                      f"expected a value between the top track ({elev[-1]:g} deg) and 90 deg, got {cap:g}")
+    rotary = _rotary(r, t, machine)
+    overrides = _overrides(r, c, len(elev), nodes, machine, rotary.schedule)
     return TestConfig(track_elevations_deg=elev, nodes_per_track=nodes, subsegments_per_sector=subs,
                       dwell_s=dwell, feed_mm_per_min=feed, passes=passes, transit=transit,
                       projection=projection,
                       curve=CurveConfig(amplitude=amplitude, waves_per_sector=waves,
                                         cap_elevation_deg=cap,
-                                        overrides=_overrides(r, c, len(elev), nodes, machine)),
-                      rotary=_rotary(r, t, machine),
+                                        overrides=overrides),
+                      rotary=rotary,
                       remeasure=_remeasure(r, t, len(elev), nodes))
 
 
@@ -700,8 +711,8 @@ def _feed(r: _Reader, t: dict, key: str, machine: MachineConfig, default=None) -
     return feed
 
 
-def _overrides(r: _Reader, c: dict, tracks: int, nodes: int,
-               machine: MachineConfig) -> tuple[SectorCurve, ...]:
+def _overrides(r: _Reader, c: dict, tracks: int, nodes: int, machine: MachineConfig,
+               schedule: str) -> tuple[SectorCurve, ...]:
     """``[[test.curve.override]]``: one table per re-planned sector."""
     raw = c.get("override", [])
     key = "test.curve.override"
@@ -716,17 +727,23 @@ def _overrides(r: _Reader, c: dict, tracks: int, nodes: int,
     for i, o in enumerate(raw, start=1):
         key = f"{base}[{i}]" if len(raw) > 1 else base
         r.no_unknown(o, key, ("sector", "amplitude", "waves_per_sector", "projection",
-                              "feed_mm_per_min"))
+                              "feed_mm_per_min", "tilt_offset_deg"))
         sector = _sector_name(r, f"{key}.sector", r.string(o, f"{key}.sector"), tracks, nodes)
         if sector in seen:
             raise r.fail(f"{key}.sector", f"expected each sector at most once, got {sector} twice")
         seen.add(sector)
+        if "tilt_offset_deg" in o and schedule != "moving":
+            raise r.fail(f"{key}.tilt_offset_deg",
+                         f"expected test.rotary.schedule = \"moving\" for a tilt offset (the "
+                         f"'{schedule}' schedule holds the tilt axis still), got it on {sector}")
         out.append(SectorCurve(
             sector,
             r.number(o, f"{key}.amplitude", gt=0, le=1) if "amplitude" in o else None,
             r.integer(o, f"{key}.waves_per_sector", ge=1, le=10) if "waves_per_sector" in o else None,
             r.string(o, f"{key}.projection", choices=PROJECTIONS) if "projection" in o else None,
-            _feed(r, o, f"{key}.feed_mm_per_min", machine) if "feed_mm_per_min" in o else None))
+            _feed(r, o, f"{key}.feed_mm_per_min", machine) if "feed_mm_per_min" in o else None,
+            r.number(o, f"{key}.tilt_offset_deg", ge=-TILT_OFFSET_MAX_DEG, le=TILT_OFFSET_MAX_DEG,
+                     unit="deg") if "tilt_offset_deg" in o else None))
     return tuple(sorted(out, key=lambda x: (x.sector[0], int(x.sector[1:]))))
 
 

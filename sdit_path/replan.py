@@ -43,7 +43,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .config import Config, SectorCurve, parse_config
+from .config import TILT_OFFSET_MAX_DEG, Config, SectorCurve, parse_config
+from .parallel import each
 from .errormodel.model import ModelOptions, build_model
 from .errors import ConfigError
 from .geometry.hemisphere import partition
@@ -72,15 +73,19 @@ class Limits:
 
 @dataclass(frozen=True, slots=True)
 class Reason:
+    """``fixed``: no curve of the sector's patch can change it (it sits where every
+    curve of the sector passes: a node); a set-up change may."""
+
     kind: str
     value: float
     limit: float
     unit: str
     text: str
+    fixed: bool = False
 
     def as_json(self) -> dict:
         return {"kind": self.kind, "value": self.value, "limit": self.limit, "unit": self.unit,
-                "text": self.text}
+                "text": self.text, "curve_can_change": not self.fixed}
 
 
 @dataclass
@@ -116,10 +121,14 @@ class Candidate:
         if self.curve is None:
             return "as planned"
         c = self.curve
-        return ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in
-                         (("amplitude", c.amplitude), ("waves", c.waves_per_sector),
-                          ("projection", c.projection), ("feed", c.feed_mm_per_min))
-                         if v is not None) + (" mm/min" if c.feed_mm_per_min is not None else "")
+        parts = [f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in
+                 (("amplitude", c.amplitude), ("waves", c.waves_per_sector),
+                  ("projection", c.projection)) if v is not None]
+        if c.feed_mm_per_min is not None:
+            parts.append(f"feed {c.feed_mm_per_min:g} mm/min")
+        if c.tilt_offset_deg is not None:
+            parts.append(f"tilt offset {c.tilt_offset_deg:g} deg")
+        return ", ".join(parts)
 
 
 #: the model the information is measured with: the one ``analyse`` identifies by
@@ -139,11 +148,19 @@ def evaluate_layer(cfg: Config, layer_name: str, travel: dict, kin: Kinematics,
     _, checks = check_layer(path, cfg, kin, scene)
     bad = [c.piece_id for c in checks if not c.feasible]
     values: dict[str, dict] = {}
+    nodes = [(n.id, np.asarray(n.position_mm)) for n in hemi.nodes]
     for c in checks:
         if c.kind != "segment":
             continue
+        at = None
+        if c.clearance_point_mm is not None:
+            p = np.asarray(c.clearance_point_mm)
+            # where every curve of the sector passes: the smallest clearance is the node's
+            at = next((nid for nid, xyz in nodes if np.linalg.norm(p - xyz) < NODE_TOL_MM), None)
         values[c.piece_id] = {
             "clearance_mm": c.min_clearance_mm,
+            "clearance_pair": None if c.clearance_pair is None else list(c.clearance_pair),
+            "clearance_at_node": at,
             "rotary_rate_warnings": len(c.warnings),
             "feasible": c.feasible,
             "violations": [v.describe() for v in c.violations]}
@@ -362,7 +379,15 @@ def judge(cfg: Config, values: dict[str, dict], limits: Limits,
         lim = limits.clearance_factor * cfg.check.safety_clearance_mm
         c = v.get("clearance_mm")
         if c is not None and c < lim:
-            r.append(Reason("clearance", c, lim, "mm", f"clearance {c:.2f} mm < {lim:.2f} mm"))
+            pair = "/".join(v.get("clearance_pair") or [])
+            node = v.get("clearance_at_node")
+            if node:
+                r.append(Reason("clearance", c, lim, "mm",
+                                f"clearance {c:.2f} mm < {lim:.2f} mm ({pair}) at node {node}, "
+                                f"where every curve of the sector passes", fixed=True))
+            else:
+                r.append(Reason("clearance", c, lim, "mm",
+                                f"clearance {c:.2f} mm < {lim:.2f} mm" + (f" ({pair})" if pair else "")))
         for key, lim, unit in (("travel_margin_mm", limits.travel_margin_mm, "mm"),
                                ("travel_margin_deg", limits.travel_margin_deg, "deg")):
             m = v.get(key)
@@ -395,6 +420,9 @@ def judge(cfg: Config, values: dict[str, dict], limits: Limits,
             out[sid] = r
     return out
 
+
+#: a segment's smallest clearance closer than this to a node (mm) is the node's
+NODE_TOL_MM = 1e-3
 
 #: information gains below this (nats) are a tie: 0.05 nats changes the geometric-mean
 #: standard uncertainty of k determined combinations by exp(-0.025 / k), 0.8 % for k = 3
@@ -431,6 +459,8 @@ def with_overrides(cfg: Config, overrides: dict[str, SectorCurve],
             lines.append(f'projection = "{o.projection}"')
         if o.feed_mm_per_min is not None:
             lines.append(f"feed_mm_per_min = {o.feed_mm_per_min!r}")
+        if o.tilt_offset_deg is not None:
+            lines.append(f"tilt_offset_deg = {o.tilt_offset_deg!r}")
         text = text.rstrip("\n") + "\n" + "\n".join(lines) + "\n"
     return parse_config(text, cfg.source)
 
@@ -463,48 +493,61 @@ def _drop_table(text: str, name: str) -> str:
 DYNAMIC = ("servo_sensitivity", "acceleration", "rotary_rate")
 #: the sector's feed is tried at these fractions where a reason is dynamic
 FEED_FRACTIONS = (0.7, 0.5)
+#: reasons a tilt of the table over the patch may answer (other poses of the same ball
+#: path: other clearances, other axis positions, other information on the rotary axes)
+POSE = ("infeasible", "clearance", "travel_margin", "information")
+#: the tilt offsets (deg, added to the sector's own) tried where a reason is about poses
+TILT_OFFSETS_DEG = (-10.0, 10.0)
 
 
 def candidates_for(cfg: Config, sector: str, kinds: set[str] = frozenset()) -> list[SectorCurve]:
-    """The curves tried for ``sector`` (each keeps the sector's own feed, if it has one);
-    where one of ``kinds`` is dynamic, also the curve as it is at lower feeds."""
+    """The curves tried for ``sector`` (each keeps the sector's own feed and tilt offset,
+    if it has them); where one of ``kinds`` is dynamic, also the curve as it is at lower
+    feeds; where one is about the poses (clearance, travel, interference, information)
+    and the rotary axes move, also the curve as it is with the table tilted away from
+    its schedule over the patch."""
     now = cfg.test.curve.for_sector(sector[0], int(sector[1:]), cfg.test.projection)
-    feed = _current(cfg).get(sector, SectorCurve(sector)).feed_mm_per_min
+    own = _current(cfg).get(sector, SectorCurve(sector))
+    feed, tilt = own.feed_mm_per_min, own.tilt_offset_deg
     out = []
     for proj in dict.fromkeys((cfg.test.projection, "stereographic", "vertical")):
         for amp in AMPLITUDES:
             for waves in WAVES:
                 if (amp, waves, proj) == now:
                     continue
-                out.append(SectorCurve(sector, amp, waves, proj, feed))
+                out.append(SectorCurve(sector, amp, waves, proj, feed, tilt))
     if kinds & set(DYNAMIC):
         base = cfg.test.curve.feed_for(f"{sector}-1", cfg.test.feed_mm_per_min)
         for k in FEED_FRACTIONS:
             f = float(max(1.0, round(base * k)))
             if f < base:
-                out.append(SectorCurve(sector, *now, f))
+                out.append(SectorCurve(sector, *now, f, tilt))
+    if kinds & set(POSE) and cfg.test.rotary.schedule == "moving":
+        for d in TILT_OFFSETS_DEG:
+            t = (tilt or 0.0) + d
+            if abs(t) <= TILT_OFFSET_MAX_DEG:
+                out.append(SectorCurve(sector, *now, feed, t if t else None))
     return out
 
 
 def choose(cfg: Config, rev: Review, sector: str, reasons: list[Reason], travel: dict,
-           limits: Limits, kin: Kinematics, scene: Scene, on_step=None) -> list[Candidate]:
-    """Every candidate of ``sector`` evaluated and ranked (best first; the sector as
-    planned among them)."""
+           limits: Limits, kin: Kinematics, scene: Scene, on_step=None,
+           jobs: int = 1) -> list[Candidate]:
+    """Every candidate of ``sector`` evaluated (in ``jobs`` worker processes) and
+    ranked (best first; the sector as planned among them)."""
     layer = sector[0]
     base = rev.layers[layer]
     S_rest = sum((ev.schur for name, ev in rev.layers.items() if name != layer and ev.feasible),
                  np.zeros_like(base.schur) if base.feasible else 0.0)
     kinds = {r.kind for r in reasons}
     seg_ids = [sid for sid in base.values if sector_of(sid) == sector]
+    curves = candidates_for(cfg, sector, kinds)
+    evaluated = each(lambda k: evaluate_layer(with_overrides(cfg, {**_current(cfg), sector: curves[k]}),
+                                              layer, travel, kin, scene),
+                     [Candidate(sector, c, base).label for c in curves], jobs,
+                     on_step or (lambda msg: None), f"trying {sector}: {{label}}")
     out = []
-    for curve in [None] + candidates_for(cfg, sector, kinds):
-        if on_step:
-            on_step(f"trying {sector}: {Candidate(sector, curve, base).label}")
-        if curve is None:
-            ev = base
-        else:
-            c2 = with_overrides(cfg, {**_current(cfg), sector: curve})
-            ev = evaluate_layer(c2, layer, travel, kin, scene)
+    for curve, ev in zip([None] + curves, [base] + evaluated):
         cand = Candidate(sector, curve, ev)
         if ev.feasible:
             cand.information_nats = _logdet(rev.directions, S_rest + ev.schur)
@@ -557,6 +600,8 @@ class Replan:
 #: makes feasible (each planned: the layer's lower track raised, the pivot raised, a
 #: longer tool)
 TRACK_RAISE_DEG = (2.0, 5.0, 10.0)
+#: with moving rotary axes, changes of the schedule's tilt at the equator (deg)
+EQUATOR_TILT_DEG = (-10.0, 10.0)
 PIVOT_RAISE_MM = (20.0, 50.0)
 TOOL_LONGER_MM = (20.0, 50.0)
 
@@ -574,9 +619,11 @@ def _edit(text: str, section: str, key: str, value: str) -> str | None:
 
 
 def setup_changes(cfg: Config, layer: str, segments: list[str], travel: dict,
-                  on_step=None) -> list[dict]:
-    """Which set-up change makes ``segments`` of ``layer`` feasible, each found by
-    planning the layer with it: its lower track raised, the pivot raised, a longer tool."""
+                  on_step=None, clearance: float | None = None) -> list[dict]:
+    """Which set-up change makes ``segments`` of ``layer`` feasible (with ``clearance``,
+    mm: also clear by that much), each found by planning the layer with it: its lower
+    track raised, the pivot raised, a longer tool, and with moving rotary axes the tilt
+    at the equator changed."""
     t = cfg.test
     names = "ABCDEFGHIJKLMNOPQRSTUVWXY"
     i = names.index(layer)
@@ -594,6 +641,11 @@ def setup_changes(cfg: Config, layer: str, segments: list[str], travel: dict,
     for d in TOOL_LONGER_MM:
         trials.append((f"tool {d:g} mm longer ({cfg.machine.tool_length_mm + d:g} mm)", "machine",
                        "tool_length_mm", repr(cfg.machine.tool_length_mm + d)))
+    if t.rotary.schedule == "moving":
+        now = math.degrees(t.rotary.tilt_at_equator_rad)
+        for d in EQUATOR_TILT_DEG:
+            trials.append((f"tilt at the equator {now + d:g} deg instead of {now:g}", "test.rotary",
+                           "tilt_at_equator_deg", f"{now + d:g}"))
     out = []
     for label, section, key, value in trials:
         text = _edit(cfg.text, section, key, value)
@@ -612,10 +664,13 @@ def setup_changes(cfg: Config, layer: str, segments: list[str], travel: dict,
         still = [sid for sid in segments if not ev.values.get(sid, {}).get("feasible", False)]
         clear = [ev.values[sid]["clearance_mm"] for sid in segments
                  if ev.values.get(sid, {}).get("clearance_mm") is not None]
+        low = min(clear) if clear else None
         out.append({"change": label, "planned": True, "config": f"[{section}] {key} = {value}",
-                    "feasible": not still, "still_infeasible": still,
-                    "layer_feasible": ev.feasible,
-                    "min_clearance_mm": min(clear) if clear else None})
+                    "feasible": not still and (clearance is None
+                                               or (low is not None and low >= clearance)),
+                    "still_infeasible": still, "layer_feasible": ev.feasible,
+                    "min_clearance_mm": low,
+                    **({"clearance_needed_mm": clearance} if clearance is not None else {})})
     return out
 
 
@@ -650,10 +705,15 @@ def analysis_reasons(plan: PlanFiles, analysis: dict, source: str,
 
 
 def replan(plan: PlanFiles, segments: list[str] | None = None, limits: Limits = Limits(),
-           on_step=None, measured: dict[str, list[Reason]] | None = None) -> Replan:
+           on_step=None, measured: dict[str, list[Reason]] | None = None,
+           on_stage=None, jobs: int = 1) -> Replan:
     """The plan reviewed, the bad segments' sectors (or those of ``segments``)
     re-planned, and the plan reviewed again with the chosen curves.  ``measured``: the
-    reasons an analysis of recordings gives (:func:`analysis_reasons`)."""
+    reasons an analysis of recordings gives (:func:`analysis_reasons`).  A sector whose
+    every reason is ``fixed`` (no curve of its patch can change it) is not searched: its
+    layer gets the set-up changes that would clear it, each planned.  ``on_step``: what
+    is going on; ``on_stage``: each sector's search as it starts; ``jobs``: worker
+    processes for the candidates (the result is the same for any number)."""
     cfg = plan.config
     known = [s.get("id") for s in plan.manifest.get("segments", []) if isinstance(s, dict)]
     for sid in segments or []:
@@ -672,8 +732,15 @@ def replan(plan: PlanFiles, segments: list[str] | None = None, limits: Limits = 
     for sid in bad:
         sectors.setdefault(sector_of(sid), []).extend(before.reasons.get(sid, []))
     tried, chosen = {}, {}
-    for sector in sorted(sectors, key=lambda x: (x[0], int(x[1:]))):
-        ranked = choose(cfg, before, sector, sectors[sector], travel, limits, kin, scene, on_step)
+    # named segments are searched whatever their reasons (the user asked)
+    fixed = {sector for sector, rs in sectors.items()
+             if not segments and rs and all(r.fixed for r in rs)}
+    order = sorted(set(sectors) - fixed, key=lambda x: (x[0], int(x[1:])))
+    for k, sector in enumerate(order, start=1):
+        if on_stage:
+            on_stage(f"re-planning sector {sector} ({k} of {len(order)})")
+        ranked = choose(cfg, before, sector, sectors[sector], travel, limits, kin, scene, on_step,
+                        jobs)
         tried[sector] = ranked
         chosen[sector] = ranked[0]
     # a sector whose infeasible segments no curve in the patch makes feasible: the
@@ -688,6 +755,19 @@ def replan(plan: PlanFiles, segments: list[str] | None = None, limits: Limits = 
                 and not before.values[sid].get("feasible", True))
     for layer, segs in stuck.items():
         setup[layer] = setup_changes(cfg, layer, segs, travel, on_step)
+    # reasons no curve can change (a clearance at a node): the set-up changes that clear
+    # them, per layer
+    held: dict[str, list[str]] = {}
+    for sid, rs in before.reasons.items():
+        if sector_of(sid) in sectors and any(r.fixed for r in rs):
+            held.setdefault(sid[0], []).append(sid)
+    for layer, segs in sorted(held.items()):
+        if layer not in setup:
+            if on_stage:
+                on_stage(f"set-up changes for layer {layer}")
+            setup[layer] = setup_changes(cfg, layer, sorted(segs), travel, on_step,
+                                         clearance=limits.clearance_factor
+                                         * cfg.check.safety_clearance_mm)
     changes = {s: c.curve for s, c in chosen.items() if c.curve is not None}
     # the sectors whose curves changed get a re-measure program of their layer, unless
     # a piece of theirs is still infeasible (it would be left out of the layer program)
@@ -764,7 +844,9 @@ def _report_json(r: Replan) -> dict:
         "setup_changes": r.setup,
         "overrides": [{k2: v for k2, v in (("sector", o.sector), ("amplitude", o.amplitude),
                                            ("waves_per_sector", o.waves_per_sector),
-                                           ("projection", o.projection)) if v is not None}
+                                           ("projection", o.projection),
+                                           ("feed_mm_per_min", o.feed_mm_per_min),
+                                           ("tilt_offset_deg", o.tilt_offset_deg)) if v is not None}
                       for o in r.config.test.curve.overrides],
     }
 
@@ -797,14 +879,16 @@ def report_text(r: Replan) -> str:
     for layer, tried in r.setup.items():
         lines.append("")
         works = [x for x in tried if x.get("feasible")]
-        lines.append(f"LAYER {layer}: no curve in the patch makes its infeasible segments feasible; "
+        need = next((x["clearance_needed_mm"] for x in tried if "clearance_needed_mm" in x), None)
+        what = ("makes its infeasible segments feasible" if need is None else
+                f"changes the clearance at its nodes (needed: {need:.2f} mm)")
+        lines.append(f"LAYER {layer}: no curve in the patch {what}; "
                      + ("these set-up changes would (each planned): " + "; ".join(
                          f"{x['change']} ({x['config']}, clearance {x['min_clearance_mm']:.2f} mm)"
                          if x.get("min_clearance_mm") is not None else
                          f"{x['change']} ({x['config']})" for x in works)
                         if works else "none of the set-up changes tried would: " + "; ".join(
-                            f"{x['change']}: " + (", ".join(x.get("still_infeasible", [])[:4])
-                                                  + " still infeasible" if x.get("planned")
+                            f"{x['change']}: " + (_short_of(x) if x.get("planned")
                                                   else x.get("why", "")) for x in tried)))
     info = j["information_nats"]
     lines.append("")
@@ -820,6 +904,14 @@ def report_text(r: Replan) -> str:
                  f"{j['cycle_s']['before']:.1f} -> {j['cycle_s']['after']:.1f} s; bad segments "
                  f"{len(j['bad_segments_before'])} -> {len(j['bad_segments_after'])}.")
     return "\n".join(lines) + "\n"
+
+
+def _short_of(x: dict) -> str:
+    """What a planned set-up change left short of."""
+    if x.get("still_infeasible"):
+        return ", ".join(x["still_infeasible"][:4]) + " still infeasible"
+    low = x.get("min_clearance_mm")
+    return "clearance " + ("unknown" if low is None else f"{low:.2f} mm")
 
 
 def pictures(r: Replan) -> dict[str, bytes]:

@@ -5,7 +5,9 @@ in the table frame so that the bar keeps a fixed azimuth in the machine, and the
 axis (B) moves linearly with the bar's elevation.  Angles are continuous along a whole
 program: the azimuth is unwrapped and every run starts on the branch where the
 previous one ended, so C never unwinds.  Where the azimuth is undefined (the bar
-vertical, at TOP) the last defined value is held (or the next one, at a start).
+vertical, at TOP) the last defined value is held (or the next one, at a start).  A
+sector's override may tilt away from the schedule over its patch (``tilt_offset_deg``,
+see ``SectorCurve``).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ class RotarySchedule:
         self.kin = kinematics
         self.names = tuple(kinematics.names[i] for i in kinematics.rotary)
         self._locked = dict(self.rotary.locked_rad)
+        self._patches = _tilt_patches(config)
         if self.rotary.schedule == "moving":
             turn = config.machine.axis(self.rotary.turn_axis)
             dz = turn.direction[2]
@@ -71,7 +74,41 @@ class RotarySchedule:
         turn = self._turn_sign * (r.hold_azimuth_rad - phi)
         tilt = r.tilt_at_equator_rad + (r.tilt_at_pole_rad - r.tilt_at_equator_rad) * (
             elevation / (math.pi / 2))
+        if self._patches:
+            tilt = tilt + self._tilt_offset(u, elevation)
         out = {k: np.full(n, v) for k, v in self._locked.items()}
         out[r.turn_axis] = turn
         out[r.tilt_axis] = tilt
         return out, float(phi[-1])
+
+    def _tilt_offset(self, u: np.ndarray, elevation: np.ndarray) -> np.ndarray:
+        """The sectors' tilt offsets (rad) at the bar directions ``u (n, 3)``: a bump
+        ``offset sin^2(pi a) sin^2(pi e)`` over each patch (``a``, ``e`` the fractions
+        of its azimuth and elevation spans), zero with zero slope on its boundary."""
+        azimuth = np.mod(np.arctan2(u[:, 1], u[:, 0]), 2 * math.pi)
+        out = np.zeros(len(u))
+        for az0, width, lo, hi, offset in self._patches:
+            a = np.mod(azimuth - az0, 2 * math.pi) / width
+            e = (elevation - lo) / (hi - lo)
+            inside = (a < 1.0) & (e > 0.0) & (e < 1.0)
+            out[inside] += offset * (np.sin(math.pi * a[inside]) * np.sin(math.pi * e[inside])) ** 2
+        return out
+
+
+def _tilt_patches(config: Config) -> tuple[tuple[float, float, float, float, float], ...]:
+    """(first azimuth, azimuth span, lower and upper elevation, tilt offset), radians, of
+    every sector whose override sets a tilt offset.  The patches are those of the
+    hemisphere's partition: a layer from its track to the next one (the cap bound for
+    the top layer), a sector between two neighbouring nodes."""
+    t = config.test
+    elevations = [math.radians(e) for e in t.track_elevations_deg]
+    bounds = elevations[1:] + [math.radians(t.curve.cap_elevation_deg)]
+    width = 2 * math.pi / t.nodes_per_track
+    out = []
+    for o in t.curve.overrides:
+        if o.tilt_offset_deg:
+            layer = ord(o.sector[0]) - ord("A")
+            sector = int(o.sector[1:])
+            out.append(((sector - 1) * width, width, elevations[layer], bounds[layer],
+                        math.radians(o.tilt_offset_deg)))
+    return tuple(out)

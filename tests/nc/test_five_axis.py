@@ -14,6 +14,7 @@ from sdit_path.machine.kinematics import Kinematics
 from sdit_path.nc.readback import read_sinumerik
 from sdit_path.pipeline import plan
 from sdit_path.report.manifest import manifest
+from sdit_path.timing.trajectory import Timer, sample
 
 from conftest import edit
 from nc.test_linuxcnc import _require_interpreter
@@ -131,3 +132,88 @@ def test_locked_schedule_on_the_five_axis_machine_sets_rotary_axes_once():
     kin = Kinematics(result.config.machine)
     q = kin.inverse(np.array([[0.0, 0.0, 0.0]]), {"B": [0.0], "C": [0.0]})
     assert q[0, kin.index["Z"]] == pytest.approx(100.0)
+
+
+TILTED = '\n[[test.curve.override]]\nsector = "A2"\ntilt_offset_deg = 12.0\n'
+
+
+def test_a_sectors_tilt_offset_tilts_only_its_patch_and_keeps_every_program_on_the_sphere(tmp_path):
+    """``tilt_offset_deg`` (issue 17): over its sector's patch the table tilts away from
+    the schedule, smoothly to zero at the patch's boundary (the nodes, the tracks); the
+    ball's path, the timing and every other sector stay as they were; the 840D program in
+    machine coordinates (through the forward kinematics) and the LinuxCNC program (through
+    its interpreter) keep the ball on the sphere."""
+    text = edit(sample_path("bc_table_5axis.toml").read_text(), "five_axis_mode", '"machine"')
+    text = edit(text, "track_elevations_deg", "[36.0, 72.0]")
+    base = plan(parse_config(text, "base.toml"))
+    tilted = plan(parse_config(text + TILTED, "tilted.toml"))
+    a, b = (sample(r.layers[0].timed, Timer(r.config), 1000.0) for r in (base, tilted))
+    assert np.array_equal(a.t_s, b.t_s) and np.array_equal(a.ball_mm, b.ball_mm)
+    kin = Kinematics(tilted.config.machine)
+    tilt = a.axis_names.index("B")
+    d = b.axes[:, tilt] - a.axes[:, tilt]
+    inside = np.char.startswith(b.segment.astype(str), "A2-")
+    assert np.abs(d[~inside]).max() < 1e-9
+    assert 5.0 < d[inside].max() <= 12.0 and d[inside].min() >= 0.0
+    # zero with zero slope where the sector meets its nodes
+    edges = np.flatnonzero(np.diff(inside.astype(int)))
+    for i in edges:
+        assert abs(d[i]) < 1e-3 and abs(d[i + 1]) < 1e-3
+    # the ball stays put: the tilt is taken up by the linear axes
+    q = np.array([[np.radians(v) if u == "deg" else v for v, u in zip(row, b.axis_units)]
+                  for row in b.axes[::50]])
+    assert np.abs(kin.forward(q[:, [b.axis_names.index(n) for n in kin.names]])
+                  - b.ball_mm[::50]).max() < 1e-6
+    h = tilted.hemisphere
+    prog = next(p for p in tilted.programs if p.controller == "sinumerik840d" and p.layer == "A")
+    read = read_sinumerik(prog.text)
+    worst, b_words = 0.0, []
+    for curve, rot in zip(read.splines, read.spline_rotary):
+        spline = _q_spline(curve, rot, kin)
+        lo, hi = curve.domain
+        q = spline(np.linspace(lo, hi, 40 * len(curve.control_points_mm)))
+        r = np.linalg.norm(kin.forward(q) - h.centre_mm, axis=1) - h.radius_mm
+        worst = max(worst, float(np.abs(r).max()))
+        b_words.append(np.asarray(rot["B"]))
+    assert worst <= 1e-5
+    plain = read_sinumerik(next(p for p in base.programs if p.controller == "sinumerik840d"
+                                and p.layer == "A").text)
+    moved = [np.abs(x - np.asarray(y["B"])).max() if len(x) == len(y["B"]) else np.inf
+             for x, y in zip(b_words, plain.spline_rotary)]
+    assert sum(m > 1.0 for m in moved) >= 2 and sum(m < 1e-9 for m in moved) >= 4
+    _require_interpreter()
+    from linuxcnc_oracle import interpret, ok
+
+    tilts = []
+    for result in (base, tilted):
+        prog = next(p for p in result.programs if p.controller == "linuxcnc" and p.layer == "A")
+        f = tmp_path / f"{len(tilts)}.ngc"
+        f.write_text(prog.text)
+        ran, message, rec = interpret(str(f))
+        assert ok(ran), message
+        raw = np.array([x[1:] for x in rec.feeds])
+        q = np.zeros((len(raw), len(kin.names)))
+        for col, axis in enumerate("XYZABC"):
+            if axis in kin.index:
+                q[:, kin.index[axis]] = np.radians(raw[:, col]) if axis in "ABC" else raw[:, col]
+        t = np.linspace(0, 1, 9)[:, None, None]
+        path = (q[:-1][None] * (1 - t) + q[1:][None] * t)[:, 1:].reshape(-1, len(kin.names))
+        r = np.linalg.norm(kin.forward(path) - h.centre_mm, axis=1) - h.radius_mm
+        assert np.abs(r).max() <= result.config.post.chord_tolerance_um * 1e-3
+        tilts.append(np.degrees(q[:, kin.index["B"]]))
+    # the interpreter's B leaves the base program's by most of the offset
+    assert len(tilts[0]) == len(tilts[1]) and np.abs(tilts[1] - tilts[0]).max() > 5.0
+
+
+def test_a_tilt_offset_on_a_locked_schedule_is_refused_in_one_line():
+    from sdit_path.config import ConfigError
+
+    text = edit(sample_path("bc_table_5axis.toml").read_text(), "schedule", '"locked"')
+    with pytest.raises(ConfigError) as e:
+        parse_config(text + TILTED, "locked.toml")
+    msg = str(e.value)
+    assert "test.curve.override.tilt_offset_deg" in msg and "moving" in msg and "\n" not in msg
+    with pytest.raises(ConfigError) as e:
+        parse_config(text.replace('"locked"', '"moving"', 1) + TILTED.replace("12.0", "45.0"),
+                     "steep.toml")
+    assert "tilt_offset_deg" in str(e.value) and "30" in str(e.value)

@@ -259,3 +259,75 @@ def test_an_analysis_names_where_it_left_a_residual(bad_plan):
     assert analysis_reasons(plan, {"recordings": [quiet]}, "a.json") == {}
     with pytest.raises(ConfigError, match="analysis.json written by sdit-path analyse"):
         analysis_reasons(plan, {"geometry": {}}, "a.json")
+
+
+def test_a_pose_reason_on_moving_rotary_axes_tries_the_table_tilted_over_the_patch():
+    """Where a reason is about the poses (clearance, travel, interference, information)
+    and the rotary axes move, the candidates hold the curve as it is with the table
+    tilted away from its schedule over the patch; the written config carries the tilt
+    and reads back the same; a locked table is never offered a tilt."""
+    from conftest import edit
+    from sdit_path.config import SectorCurve, load_config, sample_path
+    from sdit_path.replan import TILT_OFFSETS_DEG, Candidate, candidates_for
+
+    cfg = load_config(sample_path("bc_table_5axis.toml"))
+    tilted = [c for c in candidates_for(cfg, "B2", {"clearance"}) if c.tilt_offset_deg]
+    assert sorted(c.tilt_offset_deg for c in tilted) == sorted(TILT_OFFSETS_DEG)
+    now = cfg.test.curve.for_sector("B", 2, cfg.test.projection)
+    assert all((c.amplitude, c.waves_per_sector, c.projection) == now for c in tilted)
+    assert not [c for c in candidates_for(cfg, "B2", {"speed_dip"}) if c.tilt_offset_deg]
+    locked = parse_config(edit(sample_path("bc_table_5axis.toml").read_text(), "schedule",
+                               '"locked"'), "locked.toml")
+    assert not [c for c in candidates_for(locked, "B2", {"clearance"}) if c.tilt_offset_deg]
+    c2 = with_overrides(cfg, {"B2": tilted[-1]})
+    assert f"tilt_offset_deg = {tilted[-1].tilt_offset_deg!r}" in c2.text
+    assert c2.test.curve.overrides == (tilted[-1],)
+    # a sector already tilted keeps its tilt in the other candidates and adds to it
+    again = candidates_for(c2, "B2", {"clearance"})
+    assert {c.tilt_offset_deg for c in again} >= {tilted[-1].tilt_offset_deg,
+                                                  tilted[-1].tilt_offset_deg + TILT_OFFSETS_DEG[-1]}
+    label = Candidate("B2", SectorCurve("B2", feed_mm_per_min=300.0, tilt_offset_deg=-10.0),
+                      None).label
+    assert label == "feed 300 mm/min, tilt offset -10 deg"
+
+
+def test_a_clearance_at_a_node_is_held_by_the_set_up_and_set_up_changes_are_planned(tmp_path):
+    """On the 5-axis sample the tool holder passes 4 mm over the bar where the bar is
+    level (the equator's nodes): every curve of a sector passes its nodes, so that
+    clearance is named as one no curve can change, and the set-up changes that would
+    (tracks, pivot, tool, the schedule's tilt at the equator) are each planned and
+    judged by the clearance they leave."""
+    from conftest import edit
+    from sdit_path.config import sample_path
+    from sdit_path.replan import EQUATOR_TILT_DEG, setup_changes
+
+    text = edit(sample_path("bc_table_5axis.toml").read_text(), "track_elevations_deg",
+                "[0.0, 45.0]")
+    text += "\n[timing]\nsample_rate_hz = 100.0\n"
+    (tmp_path / "five.toml").write_text(text)
+    r = cli("plan", str(tmp_path / "five.toml"), "--out", str(tmp_path / "plan"), "-q")
+    assert r.returncode == 0, r.stderr
+    plan = load_plan(tmp_path / "plan")
+    rev = review(plan.config, plan.tested_travel())
+    need = Limits().clearance_factor * plan.config.check.safety_clearance_mm
+    at_node = {sid: next(x for x in rs if x.kind == "clearance")
+               for sid, rs in rev.reasons.items() if any(x.kind == "clearance" and x.fixed for x in rs)}
+    # the first and last sub-segment of every sector of the equator's layer
+    assert sorted(at_node) == sorted(f"A{k}-{j}" for k in range(1, 7) for j in (1, 3))
+    for sid, x in at_node.items():
+        assert x.value < need and "at node A-" in x.text and "tool_holder/bar" in x.text
+        assert x.as_json()["curve_can_change"] is False
+        assert rev.values[sid]["clearance_at_node"].startswith("A-")
+    mid = [x for x in rev.reasons.get("A1-2", []) if x.kind == "clearance"]
+    assert all(not x.fixed for x in mid)
+    tried = setup_changes(plan.config, "A", ["A1-1", "A1-3"], plan.tested_travel(), clearance=need)
+    tilts = [x for x in tried if x["change"].startswith("tilt at the equator")]
+    assert len(tilts) == len(EQUATOR_TILT_DEG) and all(x["planned"] for x in tilts)
+    for x in tried:
+        if x["planned"]:
+            assert x["clearance_needed_mm"] == need
+            assert x["feasible"] == (not x["still_infeasible"] and x["min_clearance_mm"] is not None
+                                     and x["min_clearance_mm"] >= need)
+    # the level bar's clearance is the node's whatever the track: raising the track lifts it
+    raised = next(x for x in tried if x["change"].startswith("track A at 10"))
+    assert raised["min_clearance_mm"] > min(x.value for x in at_node.values())
