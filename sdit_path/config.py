@@ -30,6 +30,9 @@ SCHEDULES = ("locked", "moving")
 #: the largest tilt offset a sector may take (deg): beyond it the table tilts far from
 #: the schedule the rest of the test holds, and the patch's boundary slopes grow steep
 TILT_OFFSET_MAX_DEG = 30.0
+#: where a sector's wave may crest (fraction of the sector): within it the azimuth warp
+#: that moves the crest stays monotone with margin (it folds beyond 0.29 and 0.71)
+CREST_RANGE = (0.3, 0.7)
 SHAPES = ("box", "cylinder", "capsule", "sphere", "mesh")
 FIVE_AXIS_MODES = ("traori", "machine")
 #: Default direction of an axis by name and by the branch carrying it.
@@ -139,6 +142,14 @@ class CurveConfig:
                         projection if o.projection is None else o.projection)
         return self.amplitude, self.waves_per_sector, projection
 
+    def crest_for(self, layer: str, sector: int) -> float:
+        """Where the curves of a sector crest, as a fraction of the sector (0.5: mid-sector,
+        unless its override moves it)."""
+        for o in self.overrides:
+            if o.sector == f"{layer}{sector}" and o.crest_at is not None:
+                return o.crest_at
+        return 0.5
+
     def feed_for(self, segment_id: str, feed_mm_per_min: float) -> float:
         """The feed (mm/min) of the curves of a segment (``D3-2``): its sector's
         override where it sets one, else ``feed_mm_per_min`` (the test's)."""
@@ -160,7 +171,10 @@ class SectorCurve:
     angle over the sector's patch, ``offset * sin^2(pi a) * sin^2(pi e)`` with ``a`` and
     ``e`` the fractions of the patch's azimuth and elevation spans: a function of the
     ball's place alone (every stage computes the same angles), zero with zero slope on
-    the patch's boundary (the nodes, the tracks, the neighbours)."""
+    the patch's boundary (the nodes, the tracks, the neighbours).  ``crest_at``: where
+    in the sector (a fraction of its azimuth span, 0.3-0.7; 0.5 as planned) a single
+    wave crests - the wave's phase within the sector, nodes and zero slopes kept (see
+    ``geometry.curves``)."""
 
     sector: str  # layer and 1-based sector, e.g. "D3"
     amplitude: float | None = None
@@ -168,6 +182,7 @@ class SectorCurve:
     projection: str | None = None
     feed_mm_per_min: float | None = None
     tilt_offset_deg: float | None = None
+    crest_at: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -727,7 +742,7 @@ def _overrides(r: _Reader, c: dict, tracks: int, nodes: int, machine: MachineCon
     for i, o in enumerate(raw, start=1):
         key = f"{base}[{i}]" if len(raw) > 1 else base
         r.no_unknown(o, key, ("sector", "amplitude", "waves_per_sector", "projection",
-                              "feed_mm_per_min", "tilt_offset_deg"))
+                              "feed_mm_per_min", "tilt_offset_deg", "crest_at"))
         sector = _sector_name(r, f"{key}.sector", r.string(o, f"{key}.sector"), tracks, nodes)
         if sector in seen:
             raise r.fail(f"{key}.sector", f"expected each sector at most once, got {sector} twice")
@@ -743,7 +758,9 @@ def _overrides(r: _Reader, c: dict, tracks: int, nodes: int, machine: MachineCon
             r.string(o, f"{key}.projection", choices=PROJECTIONS) if "projection" in o else None,
             _feed(r, o, f"{key}.feed_mm_per_min", machine) if "feed_mm_per_min" in o else None,
             r.number(o, f"{key}.tilt_offset_deg", ge=-TILT_OFFSET_MAX_DEG, le=TILT_OFFSET_MAX_DEG,
-                     unit="deg") if "tilt_offset_deg" in o else None))
+                     unit="deg") if "tilt_offset_deg" in o else None,
+            r.number(o, f"{key}.crest_at", ge=CREST_RANGE[0], le=CREST_RANGE[1])
+            if "crest_at" in o else None))
     return tuple(sorted(out, key=lambda x: (x.sector[0], int(x.sector[1:]))))
 
 

@@ -128,6 +128,8 @@ class Candidate:
             parts.append(f"feed {c.feed_mm_per_min:g} mm/min")
         if c.tilt_offset_deg is not None:
             parts.append(f"tilt offset {c.tilt_offset_deg:g} deg")
+        if c.crest_at is not None:
+            parts.append(f"crest at {c.crest_at:g} of the sector")
         return ", ".join(parts)
 
 
@@ -461,6 +463,8 @@ def with_overrides(cfg: Config, overrides: dict[str, SectorCurve],
             lines.append(f"feed_mm_per_min = {o.feed_mm_per_min!r}")
         if o.tilt_offset_deg is not None:
             lines.append(f"tilt_offset_deg = {o.tilt_offset_deg!r}")
+        if o.crest_at is not None:
+            lines.append(f"crest_at = {o.crest_at!r}")
         text = text.rstrip("\n") + "\n" + "\n".join(lines) + "\n"
     return parse_config(text, cfg.source)
 
@@ -493,40 +497,49 @@ def _drop_table(text: str, name: str) -> str:
 DYNAMIC = ("servo_sensitivity", "acceleration", "rotary_rate")
 #: the sector's feed is tried at these fractions where a reason is dynamic
 FEED_FRACTIONS = (0.7, 0.5)
-#: reasons a tilt of the table over the patch may answer (other poses of the same ball
-#: path: other clearances, other axis positions, other information on the rotary axes)
-POSE = ("infeasible", "clearance", "travel_margin", "information")
+#: reasons another pose may answer: a crest moved within the sector (other directions of
+#: the bar, other places of the ball) or, on moving rotary axes, a tilt of the table over
+#: the patch (the same ball path: other clearances, other axis positions, other
+#: information on the rotary axes)
+POSE = ("infeasible", "clearance", "travel_margin", "information", "residual")
+#: where the wave crests (fraction of the sector) in the candidates for a pose reason
+CRESTS = (0.35, 0.5, 0.65)
 #: the tilt offsets (deg, added to the sector's own) tried where a reason is about poses
 TILT_OFFSETS_DEG = (-10.0, 10.0)
 
 
 def candidates_for(cfg: Config, sector: str, kinds: set[str] = frozenset()) -> list[SectorCurve]:
-    """The curves tried for ``sector`` (each keeps the sector's own feed and tilt offset,
-    if it has them); where one of ``kinds`` is dynamic, also the curve as it is at lower
-    feeds; where one is about the poses (clearance, travel, interference, information)
-    and the rotary axes move, also the curve as it is with the table tilted away from
-    its schedule over the patch."""
+    """The curves tried for ``sector`` (each keeps the sector's own feed, tilt offset and
+    crest, if it has them); where one of ``kinds`` is dynamic, also the curve as it is
+    at lower feeds; where one is about the poses (clearance, travel, interference,
+    information, a residual), also the curve with its crest moved, and, where the rotary
+    axes move, the curve as it is with the table tilted away from its schedule over the
+    patch."""
     now = cfg.test.curve.for_sector(sector[0], int(sector[1:]), cfg.test.projection)
     own = _current(cfg).get(sector, SectorCurve(sector))
-    feed, tilt = own.feed_mm_per_min, own.tilt_offset_deg
+    feed, tilt, crest = own.feed_mm_per_min, own.tilt_offset_deg, own.crest_at
     out = []
     for proj in dict.fromkeys((cfg.test.projection, "stereographic", "vertical")):
         for amp in AMPLITUDES:
             for waves in WAVES:
                 if (amp, waves, proj) == now:
                     continue
-                out.append(SectorCurve(sector, amp, waves, proj, feed, tilt))
+                out.append(SectorCurve(sector, amp, waves, proj, feed, tilt, crest))
     if kinds & set(DYNAMIC):
         base = cfg.test.curve.feed_for(f"{sector}-1", cfg.test.feed_mm_per_min)
         for k in FEED_FRACTIONS:
             f = float(max(1.0, round(base * k)))
             if f < base:
-                out.append(SectorCurve(sector, *now, f, tilt))
-    if kinds & set(POSE) and cfg.test.rotary.schedule == "moving":
-        for d in TILT_OFFSETS_DEG:
-            t = (tilt or 0.0) + d
-            if abs(t) <= TILT_OFFSET_MAX_DEG:
-                out.append(SectorCurve(sector, *now, feed, t if t else None))
+                out.append(SectorCurve(sector, *now, f, tilt, crest))
+    if kinds & set(POSE):
+        for c in CRESTS:
+            if c != (crest or 0.5):
+                out.append(SectorCurve(sector, *now, feed, tilt, None if c == 0.5 else c))
+        if cfg.test.rotary.schedule == "moving":
+            for d in TILT_OFFSETS_DEG:
+                t = (tilt or 0.0) + d
+                if abs(t) <= TILT_OFFSET_MAX_DEG:
+                    out.append(SectorCurve(sector, *now, feed, t if t else None, crest))
     return out
 
 
@@ -846,7 +859,8 @@ def _report_json(r: Replan) -> dict:
                                            ("waves_per_sector", o.waves_per_sector),
                                            ("projection", o.projection),
                                            ("feed_mm_per_min", o.feed_mm_per_min),
-                                           ("tilt_offset_deg", o.tilt_offset_deg)) if v is not None}
+                                           ("tilt_offset_deg", o.tilt_offset_deg),
+                                           ("crest_at", o.crest_at)) if v is not None}
                       for o in r.config.test.curve.overrides],
     }
 

@@ -109,6 +109,12 @@ def test_sector_overrides_parse_and_change_only_their_sector(default_text):
     assert curve.for_sector("D", 2, "stereographic") == (1.0, 1, "stereographic")
 
 
+def test_a_sector_override_may_move_its_crest(default_text):
+    cfg = parse_config(_with_overrides(default_text, 'sector = "D3"\ncrest_at = 0.35'), "t.toml")
+    assert cfg.test.curve.crest_for("D", 3) == 0.35
+    assert cfg.test.curve.crest_for("D", 2) == 0.5
+
+
 def test_a_sector_override_may_set_its_own_feed(default_text):
     cfg = parse_config(_with_overrides(default_text, 'sector = "D3"\nfeed_mm_per_min = 300'),
                        "t.toml")
@@ -131,6 +137,9 @@ def test_a_sector_override_may_set_its_own_feed(default_text):
     (['sector = "D3"\nfeed_mm_per_min = 1e6'], r"override.feed_mm_per_min: expected a feed the machine can reach"),
     (['sector = "D3"\nfeed_mm_per_min = "slow"'], r"override.feed_mm_per_min: expected a number"),
     (['sector = "D3"', 'sector = "D3"'], r"override\[2\].sector: expected each sector at most once"),
+    (['sector = "D3"\ncrest_at = 0.2'], r"override.crest_at: expected a value >= 0.3"),
+    (['sector = "D3"\ncrest_at = 0.8'], r"override.crest_at: expected a value <= 0.7"),
+    (['sector = "D3"\ntilt_offset_deg = 5'], r"override.tilt_offset_deg: expected test.rotary.schedule"),
 ])
 def test_bad_sector_overrides_name_the_field(default_text, tables, message):
     with pytest.raises(ConfigError, match=message):

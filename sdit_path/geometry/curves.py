@@ -8,7 +8,11 @@ is lifted back onto the sphere.  Here the planar curve is a wave in polar form,
     s(phi)   = sin^2(pi * waves * phi / sector),
 
 a smooth wave that leaves every static node (on the lower circle) tangentially, crests
-on the upper circle mid-sector and returns to the next node.  The sector's sub-segments
+on the upper circle mid-sector and returns to the next node.  A sector's override may
+move the crest (``crest_at``, a fraction of the sector): the sector's azimuth fraction
+``x`` is then warped to ``x + a x (1 - x)`` before the wave is taken, with ``a`` such
+that a single wave crests there; the warp is smooth and monotone (|a| < 1), fixes the
+nodes and keeps the zero slope there.  The sector's sub-segments
 are its consecutive thirds (rising, crest, falling for the default three), so
 consecutive segments join with a continuous tangent and each curve stays inside its
 patch.  A wave per sub-segment would be tall and narrow in the upper layers (radius of
@@ -69,6 +73,7 @@ class WaveCurve:
     projection: str
     phi_start_rad: float
     phi_end_rad: float
+    crest_at: float = 0.5
 
     @property
     def squared_contact(self) -> bool:
@@ -81,7 +86,14 @@ class WaveCurve:
     def _deficit(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Azimuth and ``R - rho`` of the planar curve at ``t``."""
         phi = self.azimuth(t)
-        s = np.sin(math.pi * self.waves * phi / self.span_rad) ** 2
+        if self.crest_at == 0.5:
+            s = np.sin(math.pi * self.waves * phi / self.span_rad) ** 2
+        else:
+            c = self.crest_at
+            a = (0.5 - c) / (c * (1.0 - c))
+            base = math.floor(min(self.phi_start_rad, self.phi_end_rad) / self.span_rad + 1e-9)
+            x = phi / self.span_rad - base
+            s = np.sin(math.pi * self.waves * (x + a * x * (1.0 - x))) ** 2
         g = s * s if self.squared_contact else s
         r = self.radius_mm
         d_lower = _radius_deficit(self.lower_elevation_rad, r, self.projection)

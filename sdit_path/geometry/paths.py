@@ -165,7 +165,8 @@ class PathBuilder:
         amplitude, waves, projection = t.curve.for_sector(layer.name, seg.sector, t.projection)
         return WaveCurve(h.centre_mm, h.radius_mm, layer.lower_elevation_rad,
                          layer.upper_elevation_rad, amplitude, waves, span, projection,
-                         seg.azimuth_start_rad, seg.azimuth_end_rad)
+                         seg.azimuth_start_rad, seg.azimuth_end_rad,
+                         t.curve.crest_for(layer.name, seg.sector))
 
     def segment_run(self, layer: Layer, segs: list) -> Run:
         """One run over consecutive segments of one sector (the whole sector is cached)."""

@@ -331,3 +331,60 @@ def test_a_clearance_at_a_node_is_held_by_the_set_up_and_set_up_changes_are_plan
     # the level bar's clearance is the node's whatever the track: raising the track lifts it
     raised = next(x for x in tried if x["change"].startswith("track A at 10"))
     assert raised["min_clearance_mm"] > min(x.value for x in at_node.values())
+
+
+def test_a_sectors_crest_moves_where_asked_and_every_program_stays_on_the_sphere(bad_plan, tmp_path):
+    """``crest_at`` in a sector's override (the wave's phase within the sector): its
+    curves crest there, leave and reach the same nodes, the other sectors' samples are
+    unchanged, and the programs (840D read back, LinuxCNC through its interpreter) keep
+    the ball on the sphere."""
+    from conftest import have_linuxcnc
+    from sdit_path.config import SectorCurve
+    from sdit_path.nc.chords import chord_deviation
+    from sdit_path.nc.readback import read_sinumerik
+
+    base = parse_config(GOLDEN.read_text(), str(GOLDEN))
+    moved = with_overrides(base, {"A2": SectorCurve("A2", crest_at=0.35)})
+    assert "crest_at = 0.35" in moved.text
+    plans = {}
+    for name, cfg in (("base", base), ("moved", moved)):
+        (tmp_path / f"{name}.toml").write_text(cfg.text)
+        r = cli("plan", str(tmp_path / f"{name}.toml"), "--out", str(tmp_path / name), "-q")
+        assert r.returncode == 0, r.stderr
+        plans[name] = load_plan(tmp_path / name)
+    a, b = (plans[k].trajectory("GOLD_A") for k in ("base", "moved"))
+    centre = np.array(plans["moved"].manifest["sphere"]["centre_mm"])
+    radius = plans["moved"].manifest["sphere"]["radius_mm"]
+    for s, want in ((a, 0.5), (b, 0.35)):
+        m = np.char.startswith(s.segment.astype(str), "A2-")
+        rel = s.ball_mm[m] - centre
+        az = np.mod(np.degrees(np.arctan2(rel[:, 1], rel[:, 0])), 360.0)
+        top = np.argmax(rel[:, 2])
+        assert (az[top] - 120.0) / 120.0 == pytest.approx(want, abs=0.01)
+    def first_run(s, sid):  # the segment's samples on its first pass
+        idx = np.flatnonzero(s.segment == sid)
+        return s.ball_mm[idx[:np.argmax(np.diff(idx) > 1) + 1 if (np.diff(idx) > 1).any() else len(idx)]]
+
+    for sid in ("A1-1", "A1-2"):  # before A2 on the way out: the same samples
+        assert np.array_equal(first_run(a, sid), first_run(b, sid)), sid
+    for sid in ("A3-1", "A3-2"):  # the same curve (the time grid falls elsewhere on it)
+        pa, pb = first_run(a, sid), first_run(b, sid)
+        gap = np.min(np.linalg.norm(pb[::25, None, :] - pa[None, ::4, :], axis=2), axis=1)
+        assert gap.max() < 0.1 and abs(len(pa) - len(pb)) <= 1, sid
+    nodes = {n["id"]: np.array(n["position_mm"]) for n in plans["moved"].manifest["nodes"]}
+    read = read_sinumerik((tmp_path / "moved" / "sinumerik840d" / "GOLD_A.MPF").read_text())
+    tol = moved.post.spline_tolerance_um * 1e-3
+    for curve in read.splines:
+        u = np.linspace(*curve.domain, 40 * len(curve.control_points_mm))
+        assert np.abs(np.linalg.norm(curve.evaluate(u) - centre, axis=1) - radius).max() <= tol
+    for _, _, xyz in read.dwells:
+        assert min(np.abs(np.array(xyz) - p).max() for p in nodes.values()) < 1e-6
+    if have_linuxcnc():
+        from linuxcnc_oracle import interpret, ok
+
+        result, message, rec = interpret(str(tmp_path / "moved" / "linuxcnc" / "GOLD_A.ngc"))
+        assert ok(result), message
+        p = np.array([x[1:4] for x in rec.feeds])
+        chord = moved.post.chord_tolerance_um * 1e-3
+        assert np.abs(np.linalg.norm(p - centre, axis=1) - radius).max() <= chord
+        assert chord_deviation(p[:-1], p[1:], centre, radius).max() <= chord
