@@ -435,6 +435,11 @@ AMPLITUDES = (1.0, 0.7, 0.4)
 WAVES = (1, 2)
 
 
+#: the keys of ``[[test.curve.override]]`` besides the sector, as ``SectorCurve`` names them
+OVERRIDE_KEYS = ("amplitude", "waves_per_sector", "projection", "feed_mm_per_min",
+                 "tilt_offset_deg", "crest_at")
+
+
 def sector_of(segment_id: str) -> str:
     return segment_id.split("-", 1)[0]
 
@@ -453,18 +458,10 @@ def with_overrides(cfg: Config, overrides: dict[str, SectorCurve],
     for sector in sorted(overrides, key=lambda s: (s[0], int(s[1:]))):
         o = overrides[sector]
         lines = [f'\n[[test.curve.override]]  # re-planned by sdit-path replan', f'sector = "{sector}"']
-        if o.amplitude is not None:
-            lines.append(f"amplitude = {o.amplitude!r}")
-        if o.waves_per_sector is not None:
-            lines.append(f"waves_per_sector = {o.waves_per_sector}")
-        if o.projection is not None:
-            lines.append(f'projection = "{o.projection}"')
-        if o.feed_mm_per_min is not None:
-            lines.append(f"feed_mm_per_min = {o.feed_mm_per_min!r}")
-        if o.tilt_offset_deg is not None:
-            lines.append(f"tilt_offset_deg = {o.tilt_offset_deg!r}")
-        if o.crest_at is not None:
-            lines.append(f"crest_at = {o.crest_at!r}")
+        for key in OVERRIDE_KEYS:
+            v = getattr(o, key)
+            if v is not None:
+                lines.append(f'{key} = "{v}"' if isinstance(v, str) else f"{key} = {v!r}")
         text = text.rstrip("\n") + "\n" + "\n".join(lines) + "\n"
     return parse_config(text, cfg.source)
 
@@ -855,12 +852,8 @@ def _report_json(r: Replan) -> dict:
         "bad_segments_after": {sid: [x.as_json() for x in rs] for sid, rs in r.after.reasons.items()},
         "sectors": sectors,
         "setup_changes": r.setup,
-        "overrides": [{k2: v for k2, v in (("sector", o.sector), ("amplitude", o.amplitude),
-                                           ("waves_per_sector", o.waves_per_sector),
-                                           ("projection", o.projection),
-                                           ("feed_mm_per_min", o.feed_mm_per_min),
-                                           ("tilt_offset_deg", o.tilt_offset_deg),
-                                           ("crest_at", o.crest_at)) if v is not None}
+        "overrides": [{k2: getattr(o, k2) for k2 in ("sector",) + OVERRIDE_KEYS
+                       if getattr(o, k2) is not None}
                       for o in r.config.test.curve.overrides],
     }
 

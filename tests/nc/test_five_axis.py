@@ -36,6 +36,34 @@ def _q_spline(curve, rot, kin, axes=("B", "C")):
     return BSpline(curve.knots, q, curve.degree, extrapolate=False)
 
 
+def _interpreted(rec, kin, h) -> tuple[np.ndarray, float]:
+    """Machine values (rad, mm) of the interpreter's feed moves, and the largest distance
+    of the ball from the sphere along them (every block moves every axis linearly; the
+    first move goes from an unknown position to the start and is not checked)."""
+    raw = np.array([x[1:] for x in rec.feeds])        # x y z a b c
+    q = np.zeros((len(raw), len(kin.names)))
+    for col, axis in enumerate("XYZABC"):
+        if axis in kin.index:
+            q[:, kin.index[axis]] = np.radians(raw[:, col]) if axis in "ABC" else raw[:, col]
+    t = np.linspace(0, 1, 9)[:, None, None]
+    path = (q[:-1][None] * (1 - t) + q[1:][None] * t)[:, 1:].reshape(-1, len(kin.names))
+    r = np.linalg.norm(kin.forward(path) - h.centre_mm, axis=1) - h.radius_mm
+    return q, float(np.abs(r).max())
+
+
+def _spline_radius_error(read, kin, h) -> float:
+    """Largest distance of the ball from the sphere along a machine-frame 840D program's
+    read-back splines, through the forward kinematics (mm)."""
+    worst = 0.0
+    for curve, rot in zip(read.splines, read.spline_rotary):
+        spline = _q_spline(curve, rot, kin)
+        lo, hi = curve.domain
+        q = spline(np.linspace(lo, hi, 40 * len(curve.control_points_mm)))
+        r = np.linalg.norm(kin.forward(q) - h.centre_mm, axis=1) - h.radius_mm
+        worst = max(worst, float(np.abs(r).max()))
+    return worst
+
+
 def test_traori_programs_keep_the_table_frame_path_on_the_sphere(five_plan):
     h = five_plan.hemisphere
     progs = [p for p in five_plan.programs if p.controller == "sinumerik840d"]
@@ -67,14 +95,7 @@ def test_machine_mode_840d_spline_stays_on_the_sphere_through_fk():
     prog = next(p for p in result.programs if p.controller == "sinumerik840d")
     assert "TRAORI" not in prog.text and prog.built.program.frame == "machine"
     read = read_sinumerik(prog.text)
-    worst = 0.0
-    for curve, rot in zip(read.splines, read.spline_rotary):
-        spline = _q_spline(curve, rot, kin)
-        a, b = curve.domain
-        q = spline(np.linspace(a, b, 40 * len(curve.control_points_mm)))
-        r = np.linalg.norm(kin.forward(q) - h.centre_mm, axis=1) - h.radius_mm
-        worst = max(worst, float(np.abs(r).max()))
-    assert worst <= 1e-5
+    assert _spline_radius_error(read, kin, h) <= 1e-5
     m = manifest(result)
     assert {p["frame"]["name"] for p in m["programs"]} == {"machine"}
 
@@ -87,26 +108,14 @@ def test_linuxcnc_five_axis_programs_pass_the_interpreter_on_the_sphere(five_pla
     kin = Kinematics(cfg.machine)
     h = five_plan.hemisphere
     tol = cfg.post.chord_tolerance_um * 1e-3
-    names = list(kin.names)
     for prog in (p for p in five_plan.programs if p.controller == "linuxcnc"):
         assert prog.built.program.frame == "machine"
         f = tmp_path / prog.file.replace("/", "_")
         f.write_text(prog.text)
         result, message, rec = interpret(str(f))
         assert ok(result), f"{prog.file}: {message}"
-        raw = np.array([x[1:] for x in rec.feeds])        # x y z a b c
-        q = np.zeros((len(raw), len(names)))
-        for col, axis in enumerate("XYZABC"):
-            if axis in kin.index:
-                v = raw[:, col]
-                q[:, kin.index[axis]] = np.radians(v) if axis in "ABC" else v
-        # every block moves every axis linearly: check the ball along each move
-        t = np.linspace(0, 1, 9)[:, None, None]
-        path = (q[:-1][None] * (1 - t) + q[1:][None] * t).reshape(-1, len(names))
-        seg = slice(1, None)  # the first move goes from an unknown position to the start
-        ball = kin.forward(path.reshape(9, -1, len(names))[:, seg].reshape(-1, len(names)))
-        r = np.linalg.norm(ball - h.centre_mm, axis=1) - h.radius_mm
-        assert np.abs(r).max() <= tol, (prog.file, np.abs(r).max())
+        _, worst = _interpreted(rec, kin, h)
+        assert worst <= tol, (prog.file, worst)
         assert [s for _, s in rec.dwells] == [2.0] * len(
             next(x for x in five_plan.paths if x.layer == prog.layer).dwells)
 
@@ -167,15 +176,8 @@ def test_a_sectors_tilt_offset_tilts_only_its_patch_and_keeps_every_program_on_t
     h = tilted.hemisphere
     prog = next(p for p in tilted.programs if p.controller == "sinumerik840d" and p.layer == "A")
     read = read_sinumerik(prog.text)
-    worst, b_words = 0.0, []
-    for curve, rot in zip(read.splines, read.spline_rotary):
-        spline = _q_spline(curve, rot, kin)
-        lo, hi = curve.domain
-        q = spline(np.linspace(lo, hi, 40 * len(curve.control_points_mm)))
-        r = np.linalg.norm(kin.forward(q) - h.centre_mm, axis=1) - h.radius_mm
-        worst = max(worst, float(np.abs(r).max()))
-        b_words.append(np.asarray(rot["B"]))
-    assert worst <= 1e-5
+    assert _spline_radius_error(read, kin, h) <= 1e-5
+    b_words = [np.asarray(rot["B"]) for rot in read.spline_rotary]
     plain = read_sinumerik(next(p for p in base.programs if p.controller == "sinumerik840d"
                                 and p.layer == "A").text)
     moved = [np.abs(x - np.asarray(y["B"])).max() if len(x) == len(y["B"]) else np.inf
@@ -191,15 +193,8 @@ def test_a_sectors_tilt_offset_tilts_only_its_patch_and_keeps_every_program_on_t
         f.write_text(prog.text)
         ran, message, rec = interpret(str(f))
         assert ok(ran), message
-        raw = np.array([x[1:] for x in rec.feeds])
-        q = np.zeros((len(raw), len(kin.names)))
-        for col, axis in enumerate("XYZABC"):
-            if axis in kin.index:
-                q[:, kin.index[axis]] = np.radians(raw[:, col]) if axis in "ABC" else raw[:, col]
-        t = np.linspace(0, 1, 9)[:, None, None]
-        path = (q[:-1][None] * (1 - t) + q[1:][None] * t)[:, 1:].reshape(-1, len(kin.names))
-        r = np.linalg.norm(kin.forward(path) - h.centre_mm, axis=1) - h.radius_mm
-        assert np.abs(r).max() <= result.config.post.chord_tolerance_um * 1e-3
+        q, worst = _interpreted(rec, kin, h)
+        assert worst <= result.config.post.chord_tolerance_um * 1e-3
         tilts.append(np.degrees(q[:, kin.index["B"]]))
     # the interpreter's B leaves the base program's by most of the offset
     assert len(tilts[0]) == len(tilts[1]) and np.abs(tilts[1] - tilts[0]).max() > 5.0
