@@ -29,7 +29,7 @@ from .errormodel.errorset import ErrorSet
 from .errormodel.model import ModelOptions
 from .errors import ConfigError, RecordingError
 from .identify.identify import ExtraGroup, identify
-from .parallel import default_jobs, each
+from .parallel import each
 from .planfiles import PlanFiles
 from .sim.simulate import Trace
 

@@ -431,7 +431,7 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, jobs, quie
     from .errors import ConfigError
     from .output import check_output, write_tree
     from .parallel import default_jobs
-    from .pipeline import plan, step_count
+    from .pipeline import plan
     from .planfiles import load_plan
     from .replan import analysis_reasons, pictures, replan, report_json, report_text
     from .report.manifest import plan_directory_files

@@ -35,23 +35,22 @@ stays when nothing does better.
 
 from __future__ import annotations
 
-import json
 import math
 import re
 import tomllib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from .config import TILT_OFFSET_MAX_DEG, Config, SectorCurve, parse_config
-from .parallel import each
 from .errormodel.model import ModelOptions, build_model
 from .errors import ConfigError
 from .geometry.hemisphere import partition
 from .geometry.paths import PathBuilder
-from .identify.identify import STRUCTURAL, _schur, experiment_gram
+from .identify.identify import STRUCTURAL, experiment_gram
 from .interference.scene import Scene
 from .machine.kinematics import Kinematics
+from .parallel import each
 from .pipeline import check_layer
 from .planfiles import PlanFiles
 from .sim.simulate import axis_values_rad
@@ -457,7 +456,7 @@ def with_overrides(cfg: Config, overrides: dict[str, SectorCurve],
                     + "sectors = [" + ", ".join(f'"{x}"' for x in remeasure) + "]\n")
     for sector in sorted(overrides, key=lambda s: (s[0], int(s[1:]))):
         o = overrides[sector]
-        lines = [f'\n[[test.curve.override]]  # re-planned by sdit-path replan', f'sector = "{sector}"']
+        lines = ['\n[[test.curve.override]]  # re-planned by sdit-path replan', f'sector = "{sector}"']
         for key in OVERRIDE_KEYS:
             v = getattr(o, key)
             if v is not None:
