@@ -2,9 +2,9 @@
 made bad on purpose (``golden_small`` at F1000 with, ``--case curvature``, eight waves in
 sector A2, where the curvature caps the speed, or, ``--case feed``, sector A2 run at
 2500 mm/min, where a lag reads 2.7 times the plan's median) and its re-planned version
-are recorded by ``perturb`` with the
-same hidden geometry (linear order 1 + squareness, random per trial), the same servo
-mismatch and set-up, and identified (``identify``, geometry only: what a user without a
+are recorded by ``perturb`` with the same hidden geometry (linear order 1 + squareness,
+random per trial), the same servo mismatch and set-up, and identified (``identify
+--linear-order 1``, the hidden geometry's model, geometry only: what a user without a
 dynamics model gets).  Printed per plan over the seeded trials: how far the determined
 combinations are from the truth in their own standard uncertainties and in their units,
 how large those uncertainties are, and the bias the mismatch alone brings (the same
@@ -46,7 +46,9 @@ def must(r: subprocess.CompletedProcess) -> None:
 
 def _identify(plan: Path, d: Path, name: str, inst: dict, hidden: Path, setup: str,
               mismatch_ms: float, seed: int) -> dict:
-    args = ["identify", "--plan", str(plan), "--json", str(d / f"{name}.json")]
+    # the model of the hidden geometry (linear order 1 + squareness), as analyse's default
+    args = ["identify", "--plan", str(plan), "--linear-order", "1", "--json",
+            str(d / f"{name}.json")]
     for prog, (lead, ppm, noise) in inst.items():
         f = d / f"{name}_{prog}.csv"
         must(cli("perturb", "--plan", str(plan), "--program", prog, "--model", str(hidden),
@@ -56,6 +58,17 @@ def _identify(plan: Path, d: Path, name: str, inst: dict, hidden: Path, setup: s
         args += ["--trace", str(f), "--program", prog]
     must(cli(*args))
     return json.loads((d / f"{name}.json").read_text())
+
+
+def _same_direction(a: list, b: list) -> bool:
+    """Two combinations along the same direction of the parameters (the plan decides it;
+    the order of the terms may differ)."""
+    ca = {t["parameter"]: t["coefficient"] for t in a}
+    cb = {t["parameter"]: t["coefficient"] for t in b}
+    keys = sorted(set(ca) | set(cb))
+    u = np.array([ca.get(k, 0.0) for k in keys])
+    v = np.array([cb.get(k, 0.0) for k in keys])
+    return float(u @ v) > 0.9999 * float(np.linalg.norm(u) * np.linalg.norm(v))
 
 
 def trial(k: int, seed: int, plans: dict, work: Path, mismatch_ms: float) -> dict:
@@ -78,9 +91,9 @@ def trial(k: int, seed: int, plans: dict, work: Path, mismatch_ms: float) -> dic
         rep = _identify(plan, d, tag, inst, d / "hidden.toml", setup, mismatch_ms, noise_seed)
         ref = _identify(plan, d, tag + "_nodyn", inst, d / "hidden.toml", setup, 0.0, noise_seed)
         errs, zs, stds, bias, bz = [], [], [], [], []
-        same = [(c["terms"], c2["terms"]) for c, c2 in zip(rep["combinations"], ref["combinations"])]
         paired = len(rep["combinations"]) == len(ref["combinations"]) and all(
-            [t["parameter"] for t in a] == [t["parameter"] for t in b] for a, b in same)
+            _same_direction(a["terms"], b["terms"])
+            for a, b in zip(rep["combinations"], ref["combinations"]))
         for i, c in enumerate(rep["combinations"]):
             value = sum(t["coefficient"] * truth.get(t["parameter"], 0.0) for t in c["terms"])
             errs.append(abs(c["estimate"] - value))
