@@ -52,6 +52,11 @@ def _proj_gain(cols: np.ndarray, r: np.ndarray) -> float:
     return float(r @ r - (r - fit) @ (r - fit))
 
 
+#: a column whose best projection takes less than this share of the residual's energy
+#: explains nothing (an axis the bar does not see at these poses)
+NEGLIGIBLE = 1e-6
+
+
 def _grid_search(grid, score, spacing) -> float:
     """The best value of a one-dimensional parameter: ``score`` on ``grid``, then on 9
     points (``np.geomspace`` or ``np.linspace``) between the best one's neighbours."""
@@ -110,6 +115,14 @@ class Effect:
             for pattern, lim in self.limits.items():
                 if isinstance(value, float) and _match(key, pattern) and abs(value) > lim:
                     return f"{key} = {value:.4g} exceeds the plausible {lim:g}"
+        if self.timing_parameter:
+            # a lag at the far end of its search: the data want a longer one, which is not
+            # this effect (a backlash on the equator layer, its play taken up over a slow
+            # reversal, read as a mismatch with a 100 ms common lag beside a stick-slip)
+            key, grid = self.timing_parameter
+            value = params.get(key)
+            if isinstance(value, float) and grid[-1] > 0 and value >= grid[-1] * (1 - 1e-9):
+                return f"{key} = {value:.4g} at the end of its search ({grid[-1]:g})"
         return None
 
 
@@ -295,6 +308,10 @@ class Backlash(Effect):
             if not len(ctx.reversal_times[j]):
                 continue
             g = [_proj_gain(self._col(ctx, s, j, b)[:, None], r) for b in self.grid_um]
+            if max(g) <= NEGLIGIBLE * float(r @ r):
+                # an axis the bar barely sees here (Z on a level bar): its play column,
+                # fitted on noise, takes an absurd size and wrecks the held-out stretches
+                continue
             b = float(self.grid_um[int(np.argmax(g))])
             for _ in range(3):  # the column's shape depends on the play: iterate to it
                 c = self._col(ctx, s, j, b)

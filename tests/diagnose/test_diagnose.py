@@ -274,3 +274,20 @@ def test_a_friction_pulse_after_breakaway_is_placed_where_it_starts(setup):
     assert nl["onset_mm_s"] == 0.05 and nl["tau_ms"] == pytest.approx(25.0, rel=0.15), nl
     at_sign_change = spike.columns(ctx, s, {"tau_ms": 25.0})[0]
     assert not np.allclose(at_sign_change, C), "the onset must move the pulse on this program"
+
+
+def test_a_lag_at_the_end_of_its_search_is_not_taken_for_the_effect():
+    """A fitted lag at the far end of its search grid means the data want more than the
+    effect holds: it stands in for something else (a backlash of the equator layer, its
+    play taken up over a slow reversal, was read as a servo mismatch with a 100 ms
+    common lag) and is refused like any implausible fit; inside the grid it is not."""
+    from sdit_path.diagnose.effects import ServoLag, ServoMismatch
+
+    mismatch = ServoMismatch()
+    end = mismatch.grid_ms[-1]
+    why = mismatch.implausible({"common_lag_ms": float(end), "lag_Y_minus_X_ms": 0.5})
+    assert why is not None and "end of its search" in why
+    assert mismatch.implausible({"common_lag_ms": float(end) * 0.8, "lag_Y_minus_X_ms": 0.5}) is None
+    lag = ServoLag()
+    assert lag.implausible({"tau_ms": float(lag.grid_ms[-1])}) is not None
+    assert lag.implausible({"tau_ms": 30.0}) is None
