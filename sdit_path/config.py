@@ -132,32 +132,31 @@ class CurveConfig:
     cap_elevation_deg: float
     overrides: tuple["SectorCurve", ...] = ()
 
+    def override(self, sector: str) -> "SectorCurve | None":
+        """The override of ``sector`` (``D3``: layer and 1-based sector), if it has one."""
+        return next((o for o in self.overrides if o.sector == sector), None)
+
     def for_sector(self, layer: str, sector: int, projection: str) -> tuple[float, int, str]:
         """(amplitude, waves per sector, projection) of the curves of one sector: its
         override where there is one (``sector`` is 1-based, as in ``D3``)."""
-        for o in self.overrides:
-            if o.sector == f"{layer}{sector}":
-                return (self.amplitude if o.amplitude is None else o.amplitude,
-                        self.waves_per_sector if o.waves_per_sector is None else o.waves_per_sector,
-                        projection if o.projection is None else o.projection)
-        return self.amplitude, self.waves_per_sector, projection
+        o = self.override(f"{layer}{sector}")
+        if o is None:
+            return self.amplitude, self.waves_per_sector, projection
+        return (self.amplitude if o.amplitude is None else o.amplitude,
+                self.waves_per_sector if o.waves_per_sector is None else o.waves_per_sector,
+                projection if o.projection is None else o.projection)
 
     def crest_for(self, layer: str, sector: int) -> float:
         """Where the curves of a sector crest, as a fraction of the sector (0.5: mid-sector,
         unless its override moves it)."""
-        for o in self.overrides:
-            if o.sector == f"{layer}{sector}" and o.crest_at is not None:
-                return o.crest_at
-        return 0.5
+        o = self.override(f"{layer}{sector}")
+        return 0.5 if o is None or o.crest_at is None else o.crest_at
 
     def feed_for(self, segment_id: str, feed_mm_per_min: float) -> float:
         """The feed (mm/min) of the curves of a segment (``D3-2``): its sector's
         override where it sets one, else ``feed_mm_per_min`` (the test's)."""
-        sector = segment_id.split("-")[0]
-        for o in self.overrides:
-            if o.sector == sector and o.feed_mm_per_min is not None:
-                return o.feed_mm_per_min
-        return feed_mm_per_min
+        o = self.override(segment_id.split("-")[0])
+        return feed_mm_per_min if o is None or o.feed_mm_per_min is None else o.feed_mm_per_min
 
 
 @dataclass(frozen=True, slots=True)

@@ -512,7 +512,7 @@ def candidates_for(cfg: Config, sector: str, kinds: set[str] = frozenset()) -> l
     axes move, the curve as it is with the table tilted away from its schedule over the
     patch."""
     now = cfg.test.curve.for_sector(sector[0], int(sector[1:]), cfg.test.projection)
-    own = _current(cfg).get(sector, SectorCurve(sector))
+    own = cfg.test.curve.override(sector) or SectorCurve(sector)
     feed, tilt, crest = own.feed_mm_per_min, own.tilt_offset_deg, own.crest_at
     out = []
     for proj in dict.fromkeys((cfg.test.projection, "stereographic", "vertical")):
