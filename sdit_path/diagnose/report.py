@@ -63,7 +63,7 @@ def summary_text(d: Diagnosis) -> str:
     al = d.alignment
     lines = [f"Program {d.program}: {d.samples['in_program']} samples in the program "
              f"({d.samples['dropouts']} dropouts); fitted on {d.samples['fitted']}, "
-             f"{d.samples['heldout']} held out (every third stretch).",
+             f"{d.samples['heldout']} held out (a third of the stretches of each kind).",
              f"Alignment: program starts at {al.offset_s:.4f} s of the recording "
              f"(+- {al.offset_std_s * 1e3:.2f} ms), instrument clock {al.clock_ppm:+.1f} ppm "
              f"(+- {al.clock_std_ppm:.1f})." + (
