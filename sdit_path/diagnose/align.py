@@ -56,21 +56,39 @@ def generic_columns(ctx: Context, expected_um: np.ndarray, extra: np.ndarray | N
     slow program whose reading hardly moves (a 5-axis test at 10 mm/s: 0.4 um/s) that
     remainder, a tenth of a micrometre, otherwise pulls the clock to the end of its
     range."""
-    mov = ctx.moving.astype(float)
-    k = max(1, int(round(0.02 / max(float(np.median(np.diff(ctx.t_s))), 1e-6))))
-    mov = np.convolve(mov, np.ones(k) / k, mode="same")
-    cols = [np.ones(ctx.n), ctx.u[:, 0], ctx.u[:, 1], ctx.u[:, 2], mov,
-            -(ctx.speed_mm_per_s ** 2) / (2 * ctx.length_mm) * 1e3, ctx.t_s / 3600.0,
-            _axis_acceleration_reading(ctx)]
-    cols += [ctx.gain[:, j] * ctx.direction[:, j] for j in ctx.linear if j in ctx.observable]
+    base, spread = _generic_base(ctx)
+    blocks, spreads = [base], [spread]
     if np.ptp(expected_um) > 1e-3:
-        cols.insert(0, expected_um)
-    X = np.column_stack(cols + ([] if extra is None else [extra]))
-    # every column's spread at once (row-major: column by column it read the whole
-    # matrix once per column)
-    keep = np.ptp(X, axis=0) > 1e-9
+        blocks.insert(0, np.asarray(expected_um, float)[:, None])
+        spreads.insert(0, np.ptp(blocks[0], axis=0))
+    if extra is not None:
+        extra = np.asarray(extra, float).reshape(ctx.n, -1)
+        blocks.append(extra)
+        # every column's spread at once (row-major: column by column it read the whole
+        # matrix once per column)
+        spreads.append(np.ptp(extra, axis=0))
+    X = np.column_stack(blocks)
+    keep = np.concatenate(spreads) > 1e-9
     keep[0] = True
     return X if keep.all() else X[:, keep]
+
+
+def _generic_base(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
+    """The generic columns that depend on the program alone, and their spreads (made
+    once per context: the timing searches build the model dozens of times)."""
+    key = ("generic",)
+    if key not in ctx._slow:
+        mov = ctx.moving.astype(float)
+        k = max(1, int(round(0.02 / max(float(np.median(np.diff(ctx.t_s))), 1e-6))))
+        mov = np.convolve(mov, np.ones(k) / k, mode="same")
+        cols = [np.ones(ctx.n), ctx.u[:, 0], ctx.u[:, 1], ctx.u[:, 2], mov,
+                -(ctx.speed_mm_per_s ** 2) / (2 * ctx.length_mm) * 1e3, ctx.t_s / 3600.0,
+                _axis_acceleration_reading(ctx)]
+        cols += [ctx.gain[:, j] * ctx.direction[:, j] for j in ctx.linear if j in ctx.observable]
+        base = np.column_stack(cols)
+        base.setflags(write=False)
+        ctx._slow[key] = (base, np.ptp(base, axis=0))
+    return ctx._slow[key]
 
 
 def axis_acceleration_readings(ctx: Context) -> np.ndarray:

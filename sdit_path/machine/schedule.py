@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from ..config import Config
+from ..geometry.hemisphere import track_names
 from .kinematics import Kinematics
 
 #: Horizontal component of the bar direction below which its azimuth is undefined.
@@ -104,10 +105,11 @@ def _tilt_patches(config: Config) -> tuple[tuple[float, float, float, float, flo
     elevations = [math.radians(e) for e in t.track_elevations_deg]
     bounds = elevations[1:] + [math.radians(t.curve.cap_elevation_deg)]
     width = 2 * math.pi / t.nodes_per_track
+    names = track_names(len(elevations))
     out = []
     for o in t.curve.overrides:
         if o.tilt_offset_deg:
-            layer = ord(o.sector[0]) - ord("A")
+            layer = names.index(o.sector[0])
             sector = int(o.sector[1:])
             out.append(((sector - 1) * width, width, elevations[layer], bounds[layer],
                         math.radians(o.tilt_offset_deg)))
