@@ -687,6 +687,15 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             memo[eff.name] = _candidate(eff, ctx, S_tr, r, pinned)
         return memo[eff.name]
 
+    def take(f, eff, nl, labels, C_tr, C_ho, A_tr, A_ho):
+        """A finding added: its columns kept; the fitted and held-out designs grown."""
+        findings.append(f)
+        chosen.append((eff, nl, labels))
+        cols_tr.append(C_tr)
+        cols_ho.append(C_ho)
+        alive.append(C_tr)
+        return np.column_stack([A_tr, C_tr]), np.column_stack([A_ho, C_ho])
+
     while len(findings) < opt.max_effects:
         step(f"selection step {len(findings) + 1}")
         rho = _rho(r_tr, S_tr.tau_s)
@@ -750,14 +759,9 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             if joint is None:
                 break
             for eff, nl, labels, C_tr, C_ho, dbic in joint[0]:
-                findings.append(Finding(eff.name, eff.title, {}, nl, labels, rms(r_tr),
-                                        rms(joint[1]), rms(r_ho), rms(joint[2]), dbic))
-                chosen.append((eff, nl, labels))
-                cols_tr.append(C_tr)
-                cols_ho.append(C_ho)
-                alive.append(C_tr)
-                A_tr = np.column_stack([A_tr, C_tr])
-                A_ho = np.column_stack([A_ho, C_ho])
+                A_tr, A_ho = take(Finding(eff.name, eff.title, {}, nl, labels, rms(r_tr),
+                                          rms(joint[1]), rms(r_ho), rms(joint[2]), dbic),
+                                  eff, nl, labels, C_tr, C_ho, A_tr, A_ho)
             r_tr, r_ho = joint[1], joint[2]
             continue
         eff, nl, labels, C_tr, C_ho, beta, new_tr, new_ho, dbic, rank = accepted
@@ -768,13 +772,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
         if ru is not None:
             f.runner_up = ru[1].name
             f.runner_up_ratio = trials[rank][0] / max(ru[0], 1e-30)
-        findings.append(f)
-        chosen.append((eff, nl, labels))
-        cols_tr.append(C_tr)
-        cols_ho.append(C_ho)
-        alive.append(C_tr)
-        A_tr = np.column_stack([A_tr, C_tr])
-        A_ho = np.column_stack([A_ho, C_ho])
+        A_tr, A_ho = take(f, eff, nl, labels, C_tr, C_ho, A_tr, A_ho)
         r_tr, r_ho = new_tr, new_ho
 
     # backward elimination: drop what the full model no longer needs, then rank by
