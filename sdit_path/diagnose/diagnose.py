@@ -120,7 +120,7 @@ def _held_stretches(ctx: Context, every: int) -> np.ndarray:
     that a play reversing with the motion cannot be told from the set-up.  The kinds are
     staggered so that one sector is not held out whole."""
     seg = ctx.segment
-    starts = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]])
+    starts = np.flatnonzero(np.diff(_units(ctx), prepend=-1))
     held = np.zeros(len(starts), dtype=bool)
     runs: dict[str, int] = {}
     count: dict[tuple, int] = {}
