@@ -14,7 +14,7 @@ the same poses.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +25,7 @@ from .diagnose.diagnose import Diagnosis, diagnose, dynamic_columns, noise_estim
 from .diagnose.diagnose import Options as DiagnosisOptions
 from .diagnose.effects import Samples, library
 from .diagnose.recording import AlignedRecording, align_recording, plausible_programs, poor_fit
+from .diagnose.report import pictures
 from .errormodel.errorset import ErrorSet
 from .errormodel.model import ModelOptions
 from .errors import ConfigError, RecordingError
@@ -46,6 +47,7 @@ class Analysed:
     diagnosis: Diagnosis
     trace: Trace  # the recording on program time (final alignment)
     ctx: Context  # the program's context
+    pictures: dict[str, bytes] = field(default_factory=dict)  # name -> PNG
 
 
 _WINDOW_S = 0.5
@@ -226,15 +228,16 @@ DIAGNOSIS = DiagnosisOptions(max_rate_hz=500.0, max_fit_samples=40_000)
 #: share the plan, the recordings and the contexts built so far without copying them)
 def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
             options: ModelOptions, step=lambda msg: None, note=lambda msg: None,
-            jobs: int = 1) -> tuple[dict, list]:
+            jobs: int = 1, pictures: bool = False) -> tuple[dict, list]:
     """``recordings``: (label, program or None, recording); ``jobs``: worker processes
-    for the per-recording stages (matching, diagnosis).  Returns the report and the
+    for the per-recording stages (matching, diagnosis); ``pictures``: each recording's
+    diagnosis pictures drawn where it was diagnosed.  Returns the report and the
     analysed recordings (for pictures and aligned traces)."""
     with threadpool_limits(limits=1, user_api="blas"):
-        return _analyse(plan, recordings, options, step, note, jobs)
+        return _analyse(plan, recordings, options, step, note, jobs, pictures)
 
 
-def _analyse(plan, recordings, options, step, note, jobs):
+def _analyse(plan, recordings, options, step, note, jobs, draw=False):
     first: list[tuple[str, str, AlignedRecording, Trace]] = []
     used: dict[str, str] = {}
     contexts: dict = {}
@@ -267,13 +270,14 @@ def _analyse(plan, recordings, options, step, note, jobs):
         d = diagnose(plan, rec.program, trace, model0, DIAGNOSIS,
                      progress=note if jobs <= 1 else None, ctx=ctx, alignment=rec.alignment)
         # the effect columns on the trajectory grid: made where the context's caches are
-        return d, effect_columns(plan, d, options, ctx)
+        # (and the pictures in the worker too: drawn one after another they took seconds)
+        return d, effect_columns(plan, d, options, ctx), pictures(d, ctx) if draw else {}
 
     results = each(diagnosed, labels, jobs, step, "diagnosing {label}",
                     sizes=[float(len(rec.trace.t_s)) for _, _, rec, _ in first])
     done: list[Analysed] = []
     columns = []
-    for (label, how, rec, trace), (d, cols) in zip(first, results):
+    for (label, how, rec, trace), (d, cols, pngs) in zip(first, results):
         ctx = _context(plan, rec.program, contexts)
         al = d.alignment
         t_m = np.asarray(trace.t_s, float)
@@ -282,7 +286,7 @@ def _analyse(plan, recordings, options, step, note, jobs):
         aligned = Trace(tau[inside], np.asarray(trace.delta_l_um, float)[inside],
                         np.array([], dtype=object), np.array([], dtype=object),
                         {**trace.header, "program": rec.program, "source": f"aligned {label}"})
-        done.append(Analysed(label, rec.program, how, rec, d, aligned, ctx))
+        done.append(Analysed(label, rec.program, how, rec, d, aligned, ctx, pngs))
         columns.append(cols)
     step("identifying the geometry with the effects found")
     experiments, extra, groups = [], [], []

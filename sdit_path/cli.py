@@ -358,7 +358,6 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
     from pathlib import Path
 
     from .analyse import aligned_csv, analyse, file_stem, summary_text
-    from .diagnose.report import pictures
     from .errormodel.model import ModelOptions
     from .errors import ConfigError
     from .output import check_output, write_tree
@@ -389,15 +388,14 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
             options = ModelOptions("legendre", linear_order, rotary_order, not no_squareness,
                                    not no_location)
             report, done = analyse(plan, recs, options, step=step, note=step.note,
-                                   jobs=jobs or default_jobs())
+                                   jobs=jobs or default_jobs(), pictures=not no_pictures)
             files = {"analysis.json": json.dumps(report, indent=2) + "\n",
                      "analysis.txt": summary_text(report)}
             for a in done:
                 stem = f"{a.program}_{file_stem(a.label)}"
                 files[f"aligned/{stem}.csv"] = aligned_csv(a)
-                if not no_pictures:
-                    for name, png in pictures(a.diagnosis, a.ctx).items():
-                        files[f"pictures/{stem}_{name}.png"] = png
+                for name, png in a.pictures.items():
+                    files[f"pictures/{stem}_{name}.png"] = png
             step("writing")
             write_tree(out_dir, files, force=force, command="analyse", protect=protect)
     except SditError as exc:

@@ -407,10 +407,12 @@ COARSE_ALL_COLUMNS_S = 1200.0
 
 def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
           ppm_limit: float = 200.0, extra: np.ndarray | None = None, candidates: int = 5,
-          seeds: tuple[tuple[float, float], ...] = ()) -> Alignment:
+          seeds: tuple[tuple[float, float], ...] = (), model: np.ndarray | None = None
+          ) -> Alignment:
     """The global search (``candidates`` distinct minima, plus ``seeds``: alignments
-    found before) polished at the full rate; the lowest residual wins."""
-    X = generic_columns(ctx, expected_um, extra)
+    found before) polished at the full rate; the lowest residual wins.  ``model``:
+    ``generic_columns(ctx, expected_um, extra)`` if the caller has it already."""
+    X = generic_columns(ctx, expected_um, extra) if model is None else model
     check_span(t_m[-1] - t_m[0], ctx.duration_s, ppm_limit)
     valid = int(np.isfinite(y).sum())
     if valid < max(1000, 0.5 * len(y)):

@@ -378,7 +378,7 @@ def _realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     the fit at its own timing needs it by the information criterion."""
     X = generic_columns(ctx, expected, extra)
     seed = ((first.offset_s, first.clock_ppm),)
-    plain = align(ctx, expected, t_m, y, extra=extra, seeds=seed)
+    plain = align(ctx, expected, t_m, y, extra=extra, seeds=seed, model=X)
     finder = X
     jump = setup_step(ctx, X, t_m, y, first)
     if jump is None:
@@ -389,7 +389,8 @@ def _realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     al = first
     for _ in range(rounds):
         yc = y - jump.reading_um(ctx, al, t_m)
-        new = align(ctx, expected, t_m, yc, extra=extra, seeds=seed + ((al.offset_s, al.clock_ppm),))
+        new = align(ctx, expected, t_m, yc, extra=extra, seeds=seed + ((al.offset_s, al.clock_ppm),),
+                    model=X)
         settled = abs(new.offset_s - al.offset_s) < 1e-3 and abs(new.clock_ppm - al.clock_ppm) < 2.0
         al = new
         if settled:
@@ -426,12 +427,12 @@ def _profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: 
         key, grid = eff.timing_parameter
         rest = _model_columns(ctx, lib, expected, [g for g in findings if g is not f])[:, 2:]
         rms: dict[float, float] = {}
+        model = _TrialModel(ctx, expected, np.column_stack([*pose, rest]))
 
         def trial(c: float) -> float:
             c = float(c)
             if c not in rms:
-                cols = eff.columns(ctx, allg, {**f.nonlinear, key: c})[0]
-                X = generic_columns(ctx, expected, np.column_stack([*pose, rest, cols]))
+                X = model.with_columns(eff.columns(ctx, allg, {**f.nonlinear, key: c})[0])
                 rms[c] = refine(ctx, X, t_m, yc, al.offset_s, al.clock_ppm, iterations=4,
                                 max_samples=30_000, check=False).rms_um
             return rms[c]
@@ -452,6 +453,29 @@ def _profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: 
             f.nonlinear[key] = best
             changed = True
     return changed
+
+
+class _TrialModel:
+    """``generic_columns(ctx, expected, [fixed, cols])`` for one trial's ``cols`` after
+    another (a parameter profiled on a grid): the same matrix, built once and its last
+    columns overwritten while every new column varies as the last ones did (the generic
+    columns drop a constant column, so the matrix's shape can depend on them)."""
+
+    def __init__(self, ctx: Context, expected: np.ndarray, fixed: np.ndarray):
+        self.ctx, self.expected, self.fixed = ctx, expected, fixed
+        self.X: np.ndarray | None = None
+        self.width = 0
+
+    def with_columns(self, cols: np.ndarray) -> np.ndarray:
+        cols = np.asarray(cols, float).reshape(self.ctx.n, -1)
+        varies = bool((np.ptp(cols, axis=0) > 1e-9).all())
+        if self.X is not None and varies and cols.shape[1] == self.width:
+            self.X[:, -self.width:] = cols
+            return self.X
+        X = generic_columns(self.ctx, self.expected, np.column_stack([self.fixed, cols]))
+        if varies:
+            self.X, self.width = X, cols.shape[1]
+        return X
 
 
 def _partner_columns(ctx: Context, eff: Effect, expected: np.ndarray, t_m: np.ndarray,
