@@ -29,6 +29,7 @@ from .diagnose.report import pictures
 from .errormodel.errorset import ErrorSet
 from .errormodel.model import ModelOptions
 from .errors import ConfigError, RecordingError
+from .heap import reusing_freed_memory
 from .identify.identify import ExtraGroup, identify
 from .parallel import each
 from .planfiles import PlanFiles
@@ -233,7 +234,7 @@ def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
     for the per-recording stages (matching, diagnosis); ``pictures``: each recording's
     diagnosis pictures drawn where it was diagnosed.  Returns the report and the
     analysed recordings (for pictures and aligned traces)."""
-    with threadpool_limits(limits=1, user_api="blas"):
+    with threadpool_limits(limits=1, user_api="blas"), reusing_freed_memory():
         return _analyse(plan, recordings, options, step, note, jobs, pictures)
 
 

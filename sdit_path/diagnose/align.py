@@ -258,11 +258,13 @@ def _timing_std(J: np.ndarray, r: np.ndarray) -> tuple[float, float]:
 
 def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s: float,
            ppm: float, ppm_limit: float = 200.0, iterations: int = 8,
-           max_samples: int = 120_000, max_step_s: float = 0.05, check: bool = True
-           ) -> Alignment:
+           max_samples: int = 120_000, max_step_s: float = 0.05, check: bool = True,
+           tolerance: float = 0.01) -> Alignment:
     """Gauss-Newton on (offset, rate) with the linear model ``X`` at the full rate;
     a step that does not lower the residual is halved, the rate stays within
-    ``ppm_limit`` (a rate that ends at that edge gets the uncertainty of the whole range)."""
+    ``ppm_limit`` (a rate that ends at that edge gets the uncertainty of the whole range).
+    It stops when a step would move the offset and the rate by less than ``tolerance``
+    of their standard uncertainties (see :func:`_negligible`)."""
     valid = np.flatnonzero(np.isfinite(y))
     if len(valid) > max_samples:
         valid = np.sort(np.random.default_rng(0).choice(valid, max_samples, replace=False))
@@ -285,6 +287,8 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
         std = _timing_std(J, r)
         d_off = float(np.clip(sol[-2], -max_step_s, max_step_s))
         d_k = float(sol[-1]) * 1e-6
+        if _negligible(d_off, d_k, std, tolerance):
+            break
         for _half in range(6):
             k_new = float(np.clip(k + d_k, -kmax, kmax))
             trial = _fit_rms(X, t, tm, yy, offset_s + d_off, k_new)
@@ -302,6 +306,18 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
     if abs(k) >= kmax * (1 - 1e-3):
         std = _at_bound(t, X @ beta, tau, std, ppm_limit)
     return Alignment(offset_s, k * 1e6, std[0], std[1], rms)
+
+
+def _negligible(d_off: float, d_k: float, std: tuple[float, float], tolerance: float) -> bool:
+    """Is a Gauss-Newton step of ``d_off`` s and ``d_k`` (relative rate) below
+    ``tolerance`` of the standard uncertainties ``std`` (s, ppm)?  Never more than 0.1 ms
+    and 0.1 ppm (an uncertainty at its bound says the data do not see the timing, not
+    that any step is small), never less than 1 us and 0.01 ppm (below that the steps
+    chase rounding: the residual agreed to eight digits while the search went on
+    halving steps of a tenth of a microsecond)."""
+    off_tol = max(1e-6, min(tolerance * std[0], 1e-4))
+    ppm_tol = max(0.01, min(tolerance * std[1], 0.1))
+    return abs(d_off) <= off_tol and abs(d_k) * 1e6 <= ppm_tol
 
 
 def _at_bound(t: np.ndarray, f: np.ndarray, tau: np.ndarray, std: tuple[float, float],
