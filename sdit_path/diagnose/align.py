@@ -423,11 +423,12 @@ COARSE_ALL_COLUMNS_S = 1200.0
 
 def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
           ppm_limit: float = 200.0, extra: np.ndarray | None = None, candidates: int = 5,
-          seeds: tuple[tuple[float, float], ...] = (), model: np.ndarray | None = None
-          ) -> Alignment:
+          seeds: tuple[tuple[float, float], ...] = (), model: np.ndarray | None = None,
+          search: bool = True) -> Alignment:
     """The global search (``candidates`` distinct minima, plus ``seeds``: alignments
     found before) polished at the full rate; the lowest residual wins.  ``model``:
-    ``generic_columns(ctx, expected_um, extra)`` if the caller has it already."""
+    ``generic_columns(ctx, expected_um, extra)`` if the caller has it already; without
+    ``search``, only the seeds are polished."""
     X = generic_columns(ctx, expected_um, extra) if model is None else model
     check_span(t_m[-1] - t_m[0], ctx.duration_s, ppm_limit)
     valid = int(np.isfinite(y).sum())
@@ -438,8 +439,11 @@ def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     # on long programs (an hour at a crawl) it searches with the generic columns only
     # and the full model polishes
     few = extra is not None and ctx.duration_s > COARSE_ALL_COLUMNS_S
-    found = coarse(ctx, generic_columns(ctx, expected_um) if few else X, t_m, y, ppm_limit,
-                   candidates=candidates)
+    if search or not seeds:
+        found = coarse(ctx, generic_columns(ctx, expected_um) if few else X, t_m, y, ppm_limit,
+                       candidates=candidates)
+    else:
+        found = []
     found = [*found, *[s for s in seeds
                        if all(abs(s[0] - o) >= 0.005 or abs(s[1] - p) > 1.0 for o, p in found)]]
     if len(found) > 1:
