@@ -19,6 +19,7 @@ import numpy as np
 from ..errormodel.chain import sensitivities
 from ..errormodel.model import ModelOptions, build_model
 from ..machine.kinematics import Kinematics
+from .align import _at
 from .context import Context, _directions, reversals
 
 STICK_SLIP_SPEED_MM_PER_S = 200.0 / 60.0
@@ -470,14 +471,17 @@ def _mode_response(acc: np.ndarray, dt: float, f_hz: float, zeta: float) -> np.n
     """Deflection of a structural mode (natural frequency ``f_hz``, damping ratio
     ``zeta``, unit static compliance) driven by ``acc`` sampled every ``dt``: the exact
     discretisation of x'' + 2 zeta w x' + w^2 x = w^2 a for an acceleration held over each
-    step (zero-order hold), so the frequency is not warped."""
+    step (zero-order hold), so the frequency is not warped.  ``acc``: (n,) or (n, k),
+    k signals filtered at once."""
     from scipy.signal import cont2discrete, lfilter, lfilter_zi
 
     w = 2 * np.pi * f_hz
     b, a, _ = cont2discrete(([w * w], [1.0, 2 * zeta * w, w * w]), dt, method="zoh")
     b = np.ravel(b)
     # at rest in its static deflection under the first acceleration
-    y, _ = lfilter(b, a, acc, zi=lfilter_zi(b, a) * acc[0])
+    zi = lfilter_zi(b, a)
+    zi = zi * acc[0] if acc.ndim == 1 else np.outer(zi, acc[0])
+    y, _ = lfilter(b, a, acc, axis=0, zi=zi)
     return y
 
 
@@ -506,11 +510,17 @@ class Vibration(Effect):
         tau = s.tau_s if sub is None else s.tau_s[sub]
         idx = s.idx if sub is None else s.idx[sub]
         dt = float(ctx.t_s[1] - ctx.t_s[0])
-        cols = []
-        for j in (linear_axes(ctx) if axes is None else axes):
-            x = _mode_response(self._acc(ctx, j), dt, f_hz, zeta)
-            cols.append(ctx.gain[idx, j] * np.interp(tau, ctx.t_s, x))
-        return np.column_stack(cols)
+        axes = linear_axes(ctx) if axes is None else list(axes)
+        # every axis filtered at once and read at the samples with one interpolation
+        # (the grid is uniform): np.interp per axis took as long as the filter
+        x = _mode_response(self._accs(ctx, axes), dt, f_hz, zeta)
+        return ctx.gain[idx][:, axes] * _at(ctx.t_s, x, tau)
+
+    def _accs(self, ctx, axes):
+        key = ("axis_accelerations", tuple(axes))
+        if key not in ctx._slow:
+            ctx._slow[key] = np.column_stack([self._acc(ctx, j) for j in axes])
+        return ctx._slow[key]
 
     def _ringing_samples(self, ctx, s, quota):
         """Indices into ``s`` where a mode can ring (from where any axis accelerates
@@ -578,14 +588,16 @@ class Vibration(Effect):
         freqs = np.geomspace(*self.band_hz, 48)
         key = ("mode_grid", len(tau), float(tau[0]), float(tau[-1]), float(tau.sum()))
         if key not in ctx._slow:
-            blocks, grams = [], []
+            k_ax = len(linear_axes(ctx))
+            P = np.empty((len(sub), len(freqs) * len(self.dampings) * k_ax))
+            grams = []
             for f in freqs:
                 for z in self.dampings:
                     C = self._mode_columns(ctx, s, f, z, sub)
                     C = C - q @ (q.T @ C)
-                    blocks.append(C)
+                    P[:, len(grams) * k_ax:(len(grams) + 1) * k_ax] = C
                     grams.append(C.T @ C)
-            ctx._slow[key] = (np.column_stack(blocks), grams)
+            ctx._slow[key] = (P, grams)
         P, grams = ctx._slow[key]
         B = (P.T @ rp).reshape(len(grams), -1)
         pairs = [(f, z) for f in freqs for z in self.dampings]
