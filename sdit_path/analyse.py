@@ -223,7 +223,7 @@ def _every(trace: Trace, k: int) -> Trace:
 
 #: the diagnosis of each recording reads it at 500 Hz at most (the geometry, identified
 #: afterwards, reads every sample)
-DIAGNOSIS = DiagnosisOptions(max_rate_hz=500.0, max_fit_samples=40_000)
+DIAGNOSIS = DiagnosisOptions(max_rate_hz=500.0, max_fit_samples=30_000)
 
 #: the job the pool's workers run (set before the pool forks, so that the workers
 #: share the plan, the recordings and the contexts built so far without copying them)

@@ -10,15 +10,16 @@ from collections import Counter
 import numpy as np
 import pytest
 
+from sdit_path.analyse import DIAGNOSIS
 from sdit_path.diagnose.context import build_context
-from sdit_path.diagnose.diagnose import Options, _held_stretches, _units, diagnose
+from sdit_path.diagnose.diagnose import _held_stretches, _units, diagnose
 from sdit_path.errormodel.errorset import load_error_set
 from sdit_path.planfiles import load_plan
 from sdit_path.sim.perturb import Hidden, Recording, perturb
 
 PROGRAM = "GOLD_A"
 #: as analyse reads a 1 kHz recording
-OPTIONS = Options(max_rate_hz=500.0, max_fit_samples=40_000)
+OPTIONS = DIAGNOSIS
 
 
 @pytest.fixture(scope="module")

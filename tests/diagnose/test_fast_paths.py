@@ -1,0 +1,97 @@
+"""The faster ways the alignment and the diagnosis compute what they computed before
+(issue 16's benchmark): each against the way it replaced, on golden_small's GOLD_A."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sdit_path.diagnose import align as align_mod
+from sdit_path.diagnose.align import coarse, generic_columns, refine
+from sdit_path.diagnose.context import build_context
+from sdit_path.diagnose.diagnose import _TrialModel, alignment_columns, expected_reading
+from sdit_path.diagnose.effects import Samples, ServoMismatch, Vibration, _mode_response, \
+    linear_axes
+from sdit_path.errormodel.errorset import load_error_set
+from sdit_path.planfiles import load_plan
+from sdit_path.sim.perturb import Hidden, Recording, perturb
+
+PROGRAM = "GOLD_A"
+
+
+@pytest.fixture(scope="module")
+def recorded(golden_plans):
+    plan = load_plan(golden_plans["fast"])
+    ctx = build_context(plan, PROGRAM)
+    model = load_error_set("paper_table2")
+    hidden = [Hidden("setup_offset", {"dx_um": 6.0, "dy_um": -4.0, "dz_um": 9.0}),
+              Hidden("servo_mismatch", {"axis": "X", "extra_lag_ms": 1.0})]
+    trace, _ = perturb(plan, PROGRAM, model, hidden,
+                       Recording(lead_s=3.5, tail_s=2.0, clock_ppm=-70.0, noise_um=0.2), 3, ctx)
+    expected = expected_reading(plan, ctx, model)
+    X = generic_columns(ctx, expected, alignment_columns(plan, ctx))
+    return plan, ctx, expected, X, np.asarray(trace.t_s, float), np.asarray(trace.delta_l_um, float)
+
+
+def test_the_direct_correlation_finds_what_the_transforms_found(recorded, monkeypatch):
+    """A lead of seconds leaves a few dozen offsets: the coarse search correlates them
+    with one matrix product; forced to the transforms it must find the same minima."""
+    _, ctx, _, X, t_m, y = recorded
+    direct = coarse(ctx, X, t_m, y, candidates=5)
+    monkeypatch.setattr(align_mod, "DIRECT_CORRELATION", 0)
+    transform = coarse(ctx, X, t_m, y, candidates=5)
+    assert len(direct) == len(transform) == 5
+    for (o1, p1), (o2, p2) in zip(direct, transform):
+        assert abs(o1 - o2) < 1e-9 and p1 == p2, (direct, transform)
+    step_ppm = 0.01 / ctx.duration_s * 1e6  # the rate grid's step
+    assert abs(direct[0][0] - 3.5) < 0.05 and abs(direct[0][1] + 70.0) <= step_ppm, direct
+
+
+def test_gauss_newton_stops_at_a_hundredth_of_the_uncertainty(recorded, monkeypatch):
+    """Stopping once a step is below 1 % of the timing's uncertainty lands within 2 % of
+    it from where the search went on to rounding, with fewer residual evaluations."""
+    _, ctx, _, X, t_m, y = recorded
+    calls = []
+    fit = align_mod._fit_rms
+    monkeypatch.setattr(align_mod, "_fit_rms", lambda *a: calls.append(1) or fit(*a))
+    quick = refine(ctx, X, t_m, y, 3.47, -20.0)
+    n_quick = len(calls)
+    calls.clear()
+    full = refine(ctx, X, t_m, y, 3.47, -20.0, tolerance=0.0)
+    assert n_quick <= len(calls), (n_quick, len(calls))
+    assert abs(quick.offset_s - full.offset_s) < 0.02 * full.offset_std_s + 1e-6
+    assert abs(quick.clock_ppm - full.clock_ppm) < 0.02 * full.clock_std_ppm + 0.01
+    assert abs(quick.offset_s - 3.5) < 0.005, quick
+
+
+def test_a_profiled_lag_overwrites_the_same_matrix(recorded):
+    """The timing profile of a lag builds its model once and overwrites the lag's
+    columns: every trial's matrix equals the one built afresh."""
+    plan, ctx, expected, _, _, _ = recorded
+    fixed = alignment_columns(plan, ctx, pose_only=True)
+    allg = Samples(np.arange(ctx.n), ctx.t_s)
+    eff = ServoMismatch()
+    model = _TrialModel(ctx, expected, fixed)
+    for lag in (0.0, 10.0, 40.0, 3.0):
+        cols = eff.columns(ctx, allg, {"common_lag_ms": lag})[0]
+        fresh = generic_columns(ctx, expected, np.column_stack([fixed, cols]))
+        assert np.array_equal(model.with_columns(cols), fresh), lag
+
+
+def test_every_mode_at_once_reads_as_each_axis_alone(recorded):
+    """A structural mode's columns, every axis filtered at once and read with one
+    interpolation, against each axis filtered and interpolated on its own."""
+    _, ctx, _, _, _, _ = recorded
+    vib = Vibration()
+    rng = np.random.default_rng(5)
+    idx = np.sort(rng.choice(ctx.n - 1, 5000, replace=False))
+    s = Samples(idx, ctx.t_s[idx] + 0.37e-3)
+    dt = float(ctx.t_s[1] - ctx.t_s[0])
+    for f_hz, zeta in ((9.0, 0.02), (83.0, 0.05), (240.0, 0.12)):
+        got = vib._mode_columns(ctx, s, f_hz, zeta)
+        want = np.column_stack([
+            ctx.gain[idx, j] * np.interp(s.tau_s, ctx.t_s,
+                                         _mode_response(vib._acc(ctx, j), dt, f_hz, zeta))
+            for j in linear_axes(ctx)])
+        scale = np.abs(want).max()
+        assert scale > 0 and np.abs(got - want).max() <= 1e-9 * scale, (f_hz, zeta)
