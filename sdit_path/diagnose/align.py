@@ -252,14 +252,16 @@ def _fit_rms(X, t, tm, yy, offset_s, k):
     return float(np.sqrt(np.mean(r * r))), tau, Xs, beta
 
 
-def _timing_std(J: np.ndarray, r: np.ndarray) -> tuple[float, float]:
+def _timing_std(J: np.ndarray, r: np.ndarray, JJ: np.ndarray | None = None
+                ) -> tuple[float, float]:
     """Standard uncertainties of the last two columns of ``J`` (offset in s, clock in
     ppm) with the model columns before them projected out (rank-revealing, so that
     redundant model columns cannot make them singular), the residual variance inflated
     by the residual's correlation in time (an effective sample count), so that a
     structured residual does not pass as thousands of independent samples.  Timing
-    the data cannot see at all gets a bound, not infinity: 1 s and 1000 ppm."""
-    JJ = J.T @ J
+    the data cannot see at all gets a bound, not infinity: 1 s and 1000 ppm.  ``JJ``:
+    ``J.T @ J`` if the caller has it."""
+    JJ = J.T @ J if JJ is None else JJ
     n = len(r)
     rho = float(np.clip(np.corrcoef(r[:-1], r[1:])[0, 1], 0.0, 0.999)) if n > 2 else 0.0
     var = float(np.mean(r * r)) * (1 + rho) / (1 - rho)
@@ -298,9 +300,10 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
         inside = (raw > t[0]) & (raw < T)
         # d tau / d offset = -1/(1+k); d tau / d k = -tau/(1+k)
         J = np.column_stack([Xs, -fd * inside / (1 + k), -fd * tau * inside / (1 + k) * 1e-6])
-        sol = _lsq(J, yy)
+        JJ = J.T @ J  # once for the step and its uncertainty
+        sol = _pinv_gram(JJ) @ (J.T @ yy)
         r = yy - Xs @ beta
-        std = _timing_std(J, r)
+        std = _timing_std(J, r, JJ)
         d_off = float(np.clip(sol[-2], -max_step_s, max_step_s))
         d_k = float(sol[-1]) * 1e-6
         if _negligible(d_off, d_k, std, tolerance):
