@@ -25,7 +25,7 @@ from .diagnose.diagnose import Diagnosis, diagnose, dynamic_columns, noise_estim
 from .diagnose.diagnose import Options as DiagnosisOptions
 from .diagnose.effects import Samples, library
 from .diagnose.recording import AlignedRecording, align_recording, plausible_programs, poor_fit
-from .diagnose.report import pictures
+from .diagnose.report import pictures as diagnosis_pictures
 from .errormodel.errorset import ErrorSet
 from .errormodel.model import ModelOptions
 from .errors import ConfigError, RecordingError
@@ -272,7 +272,7 @@ def _analyse(plan, recordings, options, step, note, jobs, draw=False):
                      progress=note if jobs <= 1 else None, ctx=ctx, alignment=rec.alignment)
         # the effect columns on the trajectory grid: made where the context's caches are
         # (and the pictures in the worker too: drawn one after another they took seconds)
-        return d, effect_columns(plan, d, options, ctx), pictures(d, ctx) if draw else {}
+        return d, effect_columns(plan, d, options, ctx), diagnosis_pictures(d, ctx) if draw else {}
 
     results = each(diagnosed, labels, jobs, step, "diagnosing {label}",
                     sizes=[float(len(rec.trace.t_s)) for _, _, rec, _ in first])

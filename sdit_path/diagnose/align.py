@@ -252,16 +252,13 @@ def _fit_rms(X, t, tm, yy, offset_s, k):
     return float(np.sqrt(np.mean(r * r))), tau, Xs, beta
 
 
-def _timing_std(J: np.ndarray, r: np.ndarray, JJ: np.ndarray | None = None
-                ) -> tuple[float, float]:
-    """Standard uncertainties of the last two columns of ``J`` (offset in s, clock in
-    ppm) with the model columns before them projected out (rank-revealing, so that
+def _timing_std(JJ: np.ndarray, r: np.ndarray) -> tuple[float, float]:
+    """Standard uncertainties of the last two columns of ``J`` (given as ``JJ = J.T @ J``;
+    offset in s, clock in ppm) with the model columns before them projected out (rank-revealing, so that
     redundant model columns cannot make them singular), the residual variance inflated
     by the residual's correlation in time (an effective sample count), so that a
     structured residual does not pass as thousands of independent samples.  Timing
-    the data cannot see at all gets a bound, not infinity: 1 s and 1000 ppm.  ``JJ``:
-    ``J.T @ J`` if the caller has it."""
-    JJ = J.T @ J if JJ is None else JJ
+    the data cannot see at all gets a bound, not infinity: 1 s and 1000 ppm."""
     n = len(r)
     rho = float(np.clip(np.corrcoef(r[:-1], r[1:])[0, 1], 0.0, 0.999)) if n > 2 else 0.0
     var = float(np.mean(r * r)) * (1 + rho) / (1 - rho)
@@ -303,7 +300,7 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
         JJ = J.T @ J  # once for the step and its uncertainty
         sol = _pinv_gram(JJ) @ (J.T @ yy)
         r = yy - Xs @ beta
-        std = _timing_std(J, r, JJ)
+        std = _timing_std(JJ, r)
         d_off = float(np.clip(sol[-2], -max_step_s, max_step_s))
         d_k = float(sol[-1]) * 1e-6
         if _negligible(d_off, d_k, std, tolerance):
