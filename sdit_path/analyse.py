@@ -30,7 +30,7 @@ from .errormodel.errorset import ErrorSet
 from .errormodel.model import ModelOptions
 from .errors import ConfigError, RecordingError
 from .heap import reusing_freed_memory
-from .identify.identify import ExtraGroup, identify
+from .identify.identify import ExtraGroup, first_gram, identification_model, identify
 from .parallel import each
 from .planfiles import PlanFiles
 from .sim.simulate import Trace
@@ -274,31 +274,48 @@ def _analyse(plan, recordings, options, step, note, jobs, draw=False):
         # (and the pictures in the worker too: drawn one after another they took seconds)
         return d, effect_columns(plan, d, options, ctx), diagnosis_pictures(d, ctx) if draw else {}
 
-    results = each(diagnosed, labels, jobs, step, "diagnosing {label}",
-                    sizes=[float(len(rec.trace.t_s)) for _, _, rec, _ in first])
-    done: list[Analysed] = []
-    columns = []
-    for (label, how, rec, trace), (d, cols, pngs) in zip(first, results):
+    # the final geometry's first normal equations of a recording are made here as soon
+    # as its diagnosis is back and a core is free (while the last diagnoses run): the
+    # same numbers as made by identify itself
+    model, _ = identification_model([plan], options)
+    done: dict[int, Analysed] = {}
+    extra: dict[int, tuple[np.ndarray | None, list[ExtraGroup]]] = {}
+    prepared: dict = {}
+    waiting: list[int] = []
+
+    def arrived(k, result, idle):
+        label, how, rec, trace = first[k]
+        d, (cols, grp), pngs = result
         ctx = _context(plan, rec.program, contexts)
-        al = d.alignment
-        t_m = np.asarray(trace.t_s, float)
-        tau = al.program_time(t_m)
-        inside = (tau >= 0.0) & (tau <= float(ctx.t_s[-1]))
-        aligned = Trace(tau[inside], np.asarray(trace.delta_l_um, float)[inside],
-                        np.array([], dtype=object), np.array([], dtype=object),
-                        {**trace.header, "program": rec.program, "source": f"aligned {label}"})
-        done.append(Analysed(label, rec.program, how, rec, d, aligned, ctx, pngs))
-        columns.append(cols)
-    step("identifying the geometry with the effects found")
-    experiments, extra, groups = [], [], []
-    for a, (cols, grp) in zip(done, columns):
-        if cols is not None and len(cols) != len(plan.trajectory(a.program).t_s):
+        done[k] = Analysed(label, rec.program, how, rec, d,
+                           _on_program_time(label, rec, trace, d, ctx), ctx, pngs)
+        if cols is not None and len(cols) != len(plan.trajectory(rec.program).t_s):
             cols, grp = None, []  # not on the trajectory grid: identify without them
-        experiments.append((plan, a.program, a.trace))
-        extra.append(cols)
-        groups.append(grp)
-    geometry = identify(experiments, options, extra=extra, groups=groups, jobs=jobs)
-    return _report(done, geometry), done
+        extra[k] = (cols, grp)
+        waiting.append(k)
+        while idle and waiting:
+            j = waiting.pop(0)
+            prepared[j] = first_gram((plan, done[j].program, done[j].trace), model, extra[j][0])
+
+    each(diagnosed, labels, jobs, step, "diagnosing {label}",
+         sizes=[float(len(rec.trace.t_s)) for _, _, rec, _ in first], arrived=arrived)
+    analysed = [done[k] for k in range(len(first))]
+    step("identifying the geometry with the effects found")
+    geometry = identify([(plan, a.program, a.trace) for a in analysed], options,
+                        extra=[extra[k][0] for k in range(len(first))],
+                        groups=[extra[k][1] for k in range(len(first))], jobs=jobs,
+                        prepared=prepared)
+    return _report(analysed, geometry), analysed
+
+
+def _on_program_time(label: str, rec: AlignedRecording, trace: Trace, d: Diagnosis,
+                     ctx: Context) -> Trace:
+    """The recording on program time by the diagnosis' alignment, inside the program."""
+    tau = d.alignment.program_time(np.asarray(trace.t_s, float))
+    inside = (tau >= 0.0) & (tau <= float(ctx.t_s[-1]))
+    return Trace(tau[inside], np.asarray(trace.delta_l_um, float)[inside],
+                 np.array([], dtype=object), np.array([], dtype=object),
+                 {**trace.header, "program": rec.program, "source": f"aligned {label}"})
 
 
 def _report(done: list[Analysed], geometry: dict) -> dict:

@@ -34,13 +34,17 @@ def default_jobs() -> int:
 
 
 def each(job, labels: list[str], jobs: int, step, what: str,
-         sizes: list[float] | None = None) -> list:
+         sizes: list[float] | None = None, arrived=None) -> list:
     """``job(k)`` for every item, in ``jobs`` worker processes (forked: everything built
     so far is shared), the results in the items' order; with ``sizes`` (the work each
     takes, roughly), the largest are started first, so that no worker is left with a
     long one at the end.  The progress names each item as its turn comes.  Each job is
     computed alone, so the results do not depend on how many workers there are (with
-    BLAS at one thread per process, as ``analyse`` runs it, the same bytes)."""
+    BLAS at one thread per process, as ``analyse`` runs it, the same bytes).
+
+    ``arrived(k, result, idle)``, if given, is called in this process as each result
+    comes back; ``idle`` is True once fewer items are left than workers (a core is free
+    for the caller's own work on what has arrived)."""
     global _JOB
     jobs = min(jobs, len(labels))
     if jobs <= 1 or "fork" not in multiprocessing.get_all_start_methods():
@@ -48,6 +52,8 @@ def each(job, labels: list[str], jobs: int, step, what: str,
         for k, label in enumerate(labels):
             step(what.format(label=label))
             out.append(job(k))
+            if arrived is not None:
+                arrived(k, out[-1], False)
         return out
     order = list(range(len(labels)))
     if sizes:
@@ -63,6 +69,8 @@ def each(job, labels: list[str], jobs: int, step, what: str,
                 if not ok:
                     _reraise(value)
                 out[order[i]] = value
+                if arrived is not None:
+                    arrived(order[i], value, len(order) - i - 1 < jobs)
     finally:
         _JOB = None
     return out

@@ -26,15 +26,28 @@ _E = np.eye(3)
 
 
 def _small_rotation(eps: np.ndarray) -> np.ndarray:
-    """Exact rotations ``(n, 3, 3)`` by rotation vectors ``eps (n, 3)`` (Rodrigues)."""
-    angle = np.linalg.norm(eps, axis=1)
-    axis = np.where(angle[:, None] > 0, eps / np.where(angle > 0, angle, 1.0)[:, None], [0, 0, 1.0])
-    k = np.zeros((len(eps), 3, 3))
-    k[:, 0, 1], k[:, 0, 2] = -axis[:, 2], axis[:, 1]
-    k[:, 1, 0], k[:, 1, 2] = axis[:, 2], -axis[:, 0]
-    k[:, 2, 0], k[:, 2, 1] = -axis[:, 1], axis[:, 0]
-    a = angle[:, None, None]
-    return np.eye(3) + np.sin(a) * k + (1 - np.cos(a)) * (k @ k)
+    """Exact rotations ``(n, 3, 3)`` by rotation vectors ``eps (n, 3)`` (Rodrigues:
+    ``cos a I + (sin a / a) [eps]x + ((1 - cos a) / a^2) eps eps^T``, written out element
+    by element; the second ratio as ``2 sin^2(a/2) / a^2``, which does not cancel for the
+    small angles of machine errors; both 1 and 1/2 at a = 0)."""
+    eps = np.asarray(eps, dtype=float)
+    x, y, z = eps[:, 0], eps[:, 1], eps[:, 2]
+    angle = np.sqrt(x * x + y * y + z * z)
+    turned = angle > 0
+    s = np.divide(np.sin(angle), angle, out=np.ones_like(angle), where=turned)
+    half = 0.5 * angle
+    h = np.divide(np.sin(half), half, out=np.ones_like(angle), where=turned)
+    c = 0.5 * h * h
+    co = np.cos(angle)
+    r = np.empty((len(eps), 3, 3))
+    cxy, cxz, cyz = c * x * y, c * x * z, c * y * z
+    r[:, 0, 0] = co + c * x * x
+    r[:, 1, 1] = co + c * y * y
+    r[:, 2, 2] = co + c * z * z
+    r[:, 0, 1], r[:, 1, 0] = cxy - s * z, cxy + s * z
+    r[:, 0, 2], r[:, 2, 0] = cxz + s * y, cxz - s * y
+    r[:, 1, 2], r[:, 2, 1] = cyz - s * x, cyz + s * x
+    return r
 
 
 def _split(model: ErrorModel, theta: np.ndarray):
@@ -72,21 +85,20 @@ def actual_ball(kin: Kinematics, model: ErrorModel, theta: np.ndarray, q: np.nda
             if name in location:  # L: about the axis point, in the current frame
                 c = np.array(ax.point_mm)
                 tw = location[name]
-                r_l = _small_rotation(np.broadcast_to(tw[3:], (n, 3)))
-                t_l = tw[:3] + c - np.einsum("nij,j->ni", r_l, c)
-                trans = trans + np.einsum("nij,nj->ni", rot, t_l)
+                r_l = _small_rotation(tw[None, 3:])[0]  # constant: one rotation
+                t_l = tw[:3] + c - r_l @ c
+                trans = trans + rot @ t_l
                 rot = rot @ r_l
             if ax.is_rotary:
                 r_m = rotation_about(d, q[:, i])
                 c = np.array(ax.point_mm)
                 t_m = c - np.einsum("nij,j->ni", r_m, c)
-            else:
+                trans = trans + np.einsum("nij,nj->ni", rot, t_m)
+                rot = rot @ r_m
+            else:  # a translation: the orientation stays
                 if name in square:
                     d = _small_rotation(square[name][None, :])[0] @ d
-                r_m = np.broadcast_to(np.eye(3), (n, 3, 3))
-                t_m = q[:, i:i + 1] * d
-            trans = trans + np.einsum("nij,nj->ni", rot, t_m)
-            rot = rot @ r_m
+                trans = trans + np.einsum("nij,nj->ni", rot, q[:, i:i + 1] * d)
             e = comp[name]
             if e.any():
                 r_e = _small_rotation(e[:, 3:])

@@ -172,21 +172,35 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
             yy = yy - (exact - J @ (theta / scale) - N @ nuis[:4])
         if extra is not None:
             N = np.column_stack([N, extra[sel]])
-        g.A += J.T @ J
-        g.B += J.T @ N
-        g.C += N.T @ N
+        # the products of the sensitivities and the nuisance columns do not move between
+        # Gauss-Newton steps either (only the corrected readings do): kept with them
+        products = cache.get(("products", key)) if cache is not None else None
+        if products is None:
+            products = (J.T @ J, J.T @ N, N.T @ N)
+            if cache is not None:
+                cache[("products", key)] = products
+        g.A += products[0]
+        g.B += products[1]
+        g.C += products[2]
         g.b += J.T @ yy
         g.c += N.T @ yy
         g.yy += float(yy @ yy)
         g.m += len(sel)
         if blocks_s and trace is not None and len(sel):
-            W = np.column_stack([J, N])
-            bid = np.floor(traj.t_s[sel] / blocks_s).astype(np.int64)
-            edges = np.flatnonzero(np.diff(bid)) + 1
-            for a, b in zip(np.r_[0, edges], np.r_[edges, len(sel)]):
-                Wb = W[a:b]
-                WW, Wy = g.blocks.get(int(bid[a]), (0.0, 0.0))
-                g.blocks[int(bid[a])] = (WW + Wb.T @ Wb, Wy + Wb.T @ yy[a:b])
+            spans = cache.get(("blocks", key, blocks_s)) if cache is not None else None
+            if spans is None:
+                bid = np.floor(traj.t_s[sel] / blocks_s).astype(np.int64)
+                edges = np.flatnonzero(np.diff(bid)) + 1
+                spans = []
+                for a, b in zip(np.r_[0, edges], np.r_[edges, len(sel)]):
+                    Wb = np.column_stack([J[a:b], N[a:b]])
+                    spans.append((int(bid[a]), a, b, Wb.T @ Wb))
+                if cache is not None:
+                    cache[("blocks", key, blocks_s)] = spans
+            for block, a, b, WWb in spans:
+                WW, Wy = g.blocks.get(block, (0.0, 0.0))
+                g.blocks[block] = (WW + WWb, Wy + np.concatenate([J[a:b].T @ yy[a:b],
+                                                                  N[a:b].T @ yy[a:b]]))
         if not observe:
             continue
         names, inverse = np.unique(segment[sel], return_inverse=True)
@@ -331,10 +345,39 @@ def _mapper(jobs: int, n: int):
     return each
 
 
+#: the exact chain's Gauss-Newton stops when a step, or what the steps' geometric decay
+#: leaves to come, moves no determined combination by more than this share of its
+#: standard uncertainty
+_EXACT_STEP = 0.01
+_EXACT_ITERATIONS = 4
+
+
+def identification_model(plans: list[PlanFiles], options: ModelOptions
+                         ) -> tuple[ErrorModel, dict]:
+    """The error model :func:`identify` fits to experiments on these plans (their tested
+    travel joined), and that travel."""
+    travel = {}
+    for plan in plans:
+        for k, (lo, hi) in plan.tested_travel().items():
+            a, b = travel.get(k, (lo, hi))
+            travel[k] = (min(a, lo), max(b, hi))
+    return build_model(plans[0].config.machine, travel, options), travel
+
+
+def first_gram(experiment: tuple[PlanFiles, str, Trace], model: ErrorModel,
+               extra: np.ndarray | None = None) -> tuple[Gram, dict]:
+    """An experiment's normal equations as :func:`identify` first makes them, and the
+    sensitivities they were made from (for its Gauss-Newton steps): made ahead, where
+    a core is free, and handed to it as ``prepared``."""
+    cache: dict = {}
+    return experiment_gram(*experiment, model, extra=extra, cache=cache), cache
+
+
 def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOptions,
              prior: bool = False, ask: tuple[str, ...] = (),
              extra: list[np.ndarray | None] | None = None,
-             groups: list[list["ExtraGroup"]] | None = None, jobs: int = 1) -> dict:
+             groups: list[list["ExtraGroup"]] | None = None, jobs: int = 1,
+             prepared: dict[int, tuple[Gram, dict]] | None = None) -> dict:
     """Identify from one or more traces; returns the report as a plain dict.
 
     ``jobs``: threads over the experiments for their normal equations (numpy leaves the
@@ -343,23 +386,24 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
 
     ``extra``: per experiment, more nuisance columns on its trajectory samples (see
     :func:`experiment_gram`), or None; ``groups`` names them (per experiment, the
-    :class:`ExtraGroup` of each effect's columns) for the aliasing report."""
+    :class:`ExtraGroup` of each effect's columns) for the aliasing report.
+    ``prepared``: experiment index -> :func:`first_gram` of it (same model, same extra
+    columns), made ahead; the result is the same as without."""
     extra = list(extra) if extra is not None else [None] * len(experiments)
-    plan0 = experiments[0][0]
-    travel = {}
-    for plan, _, _ in experiments:
-        for k, (lo, hi) in plan.tested_travel().items():
-            a, b = travel.get(k, (lo, hi))
-            travel[k] = (min(a, lo), max(b, hi))
-    model = build_model(plan0.config.machine, travel, options)
+    model, travel = identification_model([plan for plan, _, _ in experiments], options)
     for name in ask:
         if name not in model.names:
             raise ConfigError("--ask", f"{name} is not a parameter of this model; parameters: "
                                        f"{', '.join(model.names)}")
     scale = np.array([prior_scale(p) for p in model.parameters])
-    caches = [{} for _ in experiments]
+    prepared = prepared or {}
+    for gram, _ in prepared.values():
+        if gram.A.shape != (len(model.parameters),) * 2:
+            raise ValueError("identify: a prepared gram of another model")
+    caches = [prepared[k][1] if k in prepared else {} for k in range(len(experiments))]
     each = _mapper(jobs, len(experiments))
-    grams = each(lambda k: experiment_gram(*experiments[k], model, extra=extra[k], cache=caches[k]))
+    grams = each(lambda k: prepared[k][0] if k in prepared else
+                 experiment_gram(*experiments[k], model, extra=extra[k], cache=caches[k]))
     S, r, yy, m = _schur(grams)
     lam, V = np.linalg.eigh(S)
     order = np.argsort(lam)[::-1]
@@ -383,9 +427,12 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
     # Gauss-Newton on the exact error chain from the first-order solution: the readings
     # are corrected by what the exact chain adds at the current estimate (the directions
     # the data do not determine held at zero), until a step moves no combination by
-    # more than 1 % of its standard uncertainty
+    # more than 1 % of its standard uncertainty, or until the steps, which shrink
+    # geometrically (the Jacobian is kept at the nominal poses), leave less than that
+    # to go: the rest of a geometric series, ``step * rate / (1 - rate)``
     steps = []
-    for _ in range(4):
+    remaining = math.inf
+    for _ in range(_EXACT_ITERATIONS):
         nuis = [np.linalg.pinv(g.C) @ (g.c - g.B.T @ x_hat) for g in grams]
         corrected = each(lambda k: experiment_gram(*experiments[k], model,
                                                    at=(x_hat * scale, nuis[k]), extra=extra[k],
@@ -398,7 +445,12 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
         step = float(np.max(np.abs(est_c - est)[determined] / std_c[determined], initial=0.0))
         steps.append(step)
         rss, sigma, std, est, x_hat, grams, r = rss_c, sigma_c, std_c, est_c, x_c, corrected, r_c
-        if step < 0.01:
+        if step < _EXACT_STEP:
+            remaining = step
+            break
+        rate = step / steps[-2] if len(steps) >= 2 and steps[-2] > 0 else 1.0
+        if rate < 0.5 and step * rate / (1.0 - rate) < _EXACT_STEP:
+            remaining = step * rate / (1.0 - rate)
             break
     Vd = V[:, determined]
     # the uncertainty that holds: the larger of what the noise alone gives and what the
@@ -454,7 +506,8 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
                                   "covariance (blocks of program time)",
                         "block_s": BLOCK_S, "blocks": hac is not None},
         "exact_chain": {"iterations": len(steps), "steps_in_std": steps,
-                        "converged": bool(steps) and steps[-1] < 0.01},
+                        "left_in_std": remaining if math.isfinite(remaining) else None,
+                        "converged": remaining < _EXACT_STEP},
         "combinations": [{"terms": [{"parameter": n, "coefficient": c, "typical_contribution": t}
                                     for (n, c), t in zip(cb.coefficients, cb.typical)],
                           "estimate": cb.estimate, "std": cb.std, "unit": cb.unit,

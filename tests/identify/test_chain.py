@@ -32,3 +32,15 @@ def test_exact_and_first_order_agree_to_second_order(sample):
     assert residual[1] / residual[0] == pytest.approx(4.0, rel=0.1)
     assert residual[2] / residual[1] == pytest.approx(4.0, rel=0.1)
     assert residual[0] < 0.5  # um, for errors of about 10 um / 10 urad
+
+
+def test_small_rotations_agree_with_scipy():
+    """The exact chain's rotations by error vectors (written out element by element)
+    against SciPy's own rotation vectors, from machine-error angles to large ones."""
+    from scipy.spatial.transform import Rotation
+    from sdit_path.errormodel.chain import _small_rotation
+    rng = np.random.default_rng(4)
+    for scale in (0.0, 1e-12, 1e-6, 1e-3, 0.5, 3.0):
+        eps = rng.normal(size=(500, 3)) * scale
+        eps[:3] = 0.0
+        assert np.abs(_small_rotation(eps) - Rotation.from_rotvec(eps).as_matrix()).max() < 5e-15

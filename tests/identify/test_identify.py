@@ -166,3 +166,41 @@ def test_a_second_tool_length_is_found_to_help_when_it_does(plan_dir):
                  if any(t["parameter"] == "EC0Y" for t in c["terms"]))
     coef = {t["parameter"]: t["coefficient"] for t in combo["terms"]}
     assert abs(combo["estimate"] - coef["EC0Y"] * 10.0) <= 3 * combo["std"] + 0.01
+
+
+def test_normal_equations_made_ahead_give_the_same_identification(plan_dir):
+    """analyse makes a recording's first normal equations while the last diagnoses run
+    (``prepared``); the report must be the one identify makes alone, to the bit."""
+    from sdit_path.identify.identify import first_gram, identification_model
+    es = load_error_set("paper_table2")
+    options = ModelOptions(linear_order=1, squareness=True, location=True)
+    experiments = [(plan_dir, p, simulate_trace(plan_dir, p, es, noise_um=0.2, seed=5))
+                   for p in ("SDIT_A", "SDIT_C")]
+    alone = identify(experiments, options)
+    model, _ = identification_model([plan_dir], options)
+    ahead = identify(experiments, options, prepared={1: first_gram(experiments[1], model)})
+    assert ahead == alone
+    chain = alone["exact_chain"]
+    assert chain["converged"] and chain["left_in_std"] < 0.01, chain
+
+
+def test_the_exact_chain_stops_only_when_little_is_left(plan_dir, monkeypatch):
+    """Gauss-Newton may stop before a step below 1 % of the uncertainty once the steps'
+    geometric decay predicts less than that still to come (Table 2's errors doubled:
+    the second step is 2.7 % of the uncertainty): a run forced on to a step below 1e-6
+    of it must agree within that 1 %."""
+    import sdit_path.identify.identify as ident
+    es = load_error_set("paper_table2")
+    twice = ErrorSet("Table 2 doubled", es.options, tuple((k, 2 * v) for k, v in es.as_dict().items()))
+    options = ModelOptions(linear_order=1, squareness=True, location=True)
+    experiments = [(plan_dir, p, simulate_trace(plan_dir, p, twice, noise_um=0.2, seed=7))
+                   for p in ("SDIT_A", "SDIT_E")]
+    quick = identify(experiments, options)
+    chain = quick["exact_chain"]
+    assert chain["converged"] and chain["steps_in_std"][-1] > 0.01, chain  # stopped by the decay
+    monkeypatch.setattr(ident, "_EXACT_STEP", 1e-6)
+    monkeypatch.setattr(ident, "_EXACT_ITERATIONS", 12)
+    full = identify(experiments, options)
+    assert full["exact_chain"]["iterations"] > chain["iterations"]
+    for a, b in zip(quick["combinations"], full["combinations"]):
+        assert abs(a["estimate"] - b["estimate"]) <= 0.01 * b["std"], (a["text"], b["text"])
