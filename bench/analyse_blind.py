@@ -98,12 +98,12 @@ def refusals(k: int, rng, d: Path, plan_dir: Path, others: dict[str, Path], file
     if wrong:
         tries.append(("own recording named " + wrong, f"{wrong}={own}"))
     out = []
-    for t in tries:
+    for i, t in enumerate(tries):
         if isinstance(t, dict):
             out.append(t)
             continue
         what, given = t
-        o = d / "refused"
+        o = d / f"refused{i}"  # must not come to exist
         r = cli("analyse", "--plan", str(plan_dir), "--measured", given, "--out", str(o),
                 "--no-pictures", "-q")
         last = (r.stderr.strip().splitlines() or [""])[-1]

@@ -53,6 +53,9 @@ class Analysed:
 
 _WINDOW_S = 0.5
 
+#: the least dwell score (:func:`dwell_score`) of a recording of the program
+DWELL_MATCH = 0.5
+
 
 def still_windows(trace: Trace) -> np.ndarray | None:
     """Per 0.5 s of the recording: does it stand still (its spread no more than its own
@@ -71,16 +74,22 @@ def still_windows(trace: Trace) -> np.ndarray | None:
     return None if still.mean() > 0.6 else still
 
 
-def dwell_score(plan: PlanFiles, program: str, still: np.ndarray) -> float:
-    """How well the program's dwells fall on the recording's still windows, at the best
-    start: share of the windows inside a dwell that are still, less the share of the
-    windows in the motion that are (1: a perfect match; near 0: another program)."""
+def _dwell_windows(plan: PlanFiles, program: str) -> tuple[np.ndarray, np.ndarray]:
+    """Per 0.5 s of the program: wholly inside a dwell, wholly in the motion (0 or 1)."""
     traj = plan.trajectory(program)
     edges = np.arange(0.0, float(traj.t_s[-1]), _WINDOW_S)
     k = np.searchsorted(traj.t_s, edges)
     dwell = (traj.phase == "dwell")
     inside = np.array([b > a and dwell[a:b].all() for a, b in zip(k[:-1], k[1:])], float)
     moving = np.array([b > a and not dwell[a:b].any() for a, b in zip(k[:-1], k[1:])], float)
+    return inside, moving
+
+
+def dwell_score(plan: PlanFiles, program: str, still: np.ndarray) -> float:
+    """How well the program's dwells fall on the recording's still windows, at the best
+    start: share of the windows inside a dwell that are still, less the share of the
+    windows in the motion that are (1: a perfect match; near 0: another program)."""
+    inside, moving = _dwell_windows(plan, program)
     if len(inside) > len(still) or not inside.any() or not moving.any():
         return 0.0
     s = still.astype(float)
@@ -105,6 +114,23 @@ def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
                              + "; ".join(why for _, why in fits)
                              + " (another plan or feed?)")
     scores = {p: dwell_score(plan, p, still) for p in by_duration} if still is not None else {}
+    seen = ("dwells on the recording's still windows: " + ", ".join(
+        f"{p} {v:.2f}" for p, v in sorted(scores.items(), key=lambda kv: -kv[1]))
+        if scores else "the recording stands still nearly throughout (its dwells say nothing)")
+    # a recording of its program scores 0.7-1.0 (every one made so far), another program
+    # of the same plan up to 0.42, another feed or plan 0.25: below DWELL_MATCH no program
+    # of this plan was recorded (when the recording stands still at least half as long
+    # as the programs dwell: else it cannot tell)
+    telling = still is not None and scores and still.sum() >= 0.5 * min(
+        _dwell_windows(plan, p)[0].sum() for p in scores)
+    if telling and scores and max(scores.values()) < DWELL_MATCH:
+        raise RecordingError(f"{label}: matches no program of this plan: its still windows fall "
+                             f"on no program's dwells ({seen}; a recording of its program scores "
+                             f"{DWELL_MATCH} or more): another feed or plan?")
+    if telling and named in scores and scores[named] < DWELL_MATCH:
+        raise RecordingError(f"{label}: not a recording of {named}: its still windows fall on "
+                             f"{named}'s dwells at {scores[named]:.2f} ({seen}; a recording of its "
+                             f"program scores {DWELL_MATCH} or more): another program, feed or plan?")
     if scores:
         # the dwell pattern first: only the programs whose dwells fall on the
         # recording's still windows nearly as well as the best one's are aligned
@@ -124,9 +150,6 @@ def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
                                             _context(plan, prog, contexts))
         except RecordingError as exc:
             refusals[prog] = str(exc).removeprefix(f"{label}: ")
-    seen = ("dwells on the recording's still windows: " + ", ".join(
-        f"{p} {v:.2f}" for p, v in sorted(scores.items(), key=lambda kv: -kv[1]))
-        if scores else "the recording stands still nearly throughout (its dwells say nothing)")
     if named:
         if named not in results:
             raise RecordingError(f"{label}: {refusals[named]}"

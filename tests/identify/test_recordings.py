@@ -85,3 +85,40 @@ def test_a_fit_far_above_the_recordings_noise_is_not_printed_as_determined_silen
     assert r.returncode == 0, r.stderr
     before = r.stdout.split("What the data determine")[0]
     assert "WARNING: the identified model leaves" in before and "not established" in before
+
+
+@pytest.fixture(scope="module")
+def default_feeds(tmp_path_factory, default_text):
+    """The default sample planned at its feed (F600) and at F360."""
+    from conftest import edit
+    root = tmp_path_factory.mktemp("feeds")
+    out = {}
+    for name, text in (("F600", default_text), ("F360", edit(default_text, "feed_mm_per_min", "360.0"))):
+        (root / f"{name}.toml").write_text(text)
+        out[name] = root / name
+        r = run("plan", str(root / f"{name}.toml"), "--out", str(out[name]), "-q")
+        assert r.returncode == 0, r.stderr
+    return out
+
+
+def test_a_slower_layer_of_the_same_plan_is_refused(default_feeds, tmp_path):
+    """SDIT_A recorded at F360 and aligned as SDIT_A of the F600 plan (a 404 s recording
+    fits it by duration): with a 23 um set-up the reading is still in 7 of 13 dwells and
+    in most of the motion as well; with 1.7 um it is still everywhere, and only the fit
+    tells (no timing pins the clock within 500 ppm; 13 times the noise left).  Both
+    were accepted before (analyse named them SDIT_A and went on)."""
+    from sdit_path.diagnose.recording import align_recording
+    from sdit_path.errors import RecordingError
+    from sdit_path.planfiles import load_plan
+    from sdit_path.sim.traceio import read_trace
+    plan = load_plan(default_feeds["F600"])
+    for k, (dx, dy, dz) in enumerate(((-3.0, -14.0, -17.0), (1.0, -1.0, 1.0))):
+        rec = tmp_path / f"slow{k}.csv"
+        r = run("perturb", "--plan", str(default_feeds["F360"]), "--program", "SDIT_A",
+                "--effect", f"setup_offset:dx_um={dx},dy_um={dy},dz_um={dz}",
+                "--effect", "backlash:axis=X,play_um=12.5", "--lead-s", "4", "--clock-ppm", "80",
+                "--noise-um", "0.18", "--out", str(rec), "-q")
+        assert r.returncode == 0, r.stderr
+        with pytest.raises(RecordingError, match="does not match SDIT_A") as refused:
+            align_recording(plan, "SDIT_A", read_trace(rec), str(rec))
+        assert len(str(refused.value)) < 800 and "\n" not in str(refused.value)
