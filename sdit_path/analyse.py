@@ -54,7 +54,7 @@ class Analysed:
 _WINDOW_S = 0.5
 
 #: the least dwell score (:func:`dwell_score`) of a recording of the program
-DWELL_MATCH = 0.5
+DWELL_MATCH = 0.4
 
 
 def still_windows(trace: Trace) -> np.ndarray | None:
@@ -117,10 +117,10 @@ def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
     seen = ("dwells on the recording's still windows: " + ", ".join(
         f"{p} {v:.2f}" for p, v in sorted(scores.items(), key=lambda kv: -kv[1]))
         if scores else "the recording stands still nearly throughout (its dwells say nothing)")
-    # a recording of its program scores 0.7-1.0 (every one made so far), another program
-    # of the same plan up to 0.42, another feed or plan 0.25: below DWELL_MATCH no program
-    # of this plan was recorded (when the recording stands still at least half as long
-    # as the programs dwell: else it cannot tell)
+    # a recording of its program scores 0.63-1.0 (every one made so far), another
+    # program of the same plan up to 0.42, another feed or plan 0.25: below DWELL_MATCH
+    # no program of this plan was recorded (when the recording stands still at least
+    # half as long as the programs dwell: else it cannot tell)
     telling = still is not None and scores and still.sum() >= 0.5 * min(
         _dwell_windows(plan, p)[0].sum() for p in scores)
     if telling and scores and max(scores.values()) < DWELL_MATCH:
