@@ -133,14 +133,13 @@ def pictures(d: Diagnosis, ctx: Context) -> dict[str, bytes]:
     order = np.argsort(s["tau"])
     t, gap, fit, res = s["tau"][order], s["gap"][order], s["fitted"][order], s["residual"][order]
     step = max(1, len(t) // 40000)
-    t, gap, fit, res = _broken(t[::step], gap[::step], fit[::step], res[::step])
     out = {}
     fig, ax = plt.subplots(2, 1, figsize=(12, 6.5), sharex=True)
-    ax[0].plot(t, gap, lw=0.4, color="0.4", label="gap (measured - simulated)")
-    ax[0].plot(t, fit, lw=0.6, color="C1", label="findings fitted")
+    ax[0].plot(t[::step], gap[::step], lw=0.4, color="0.4", label="gap (measured - simulated)")
+    ax[0].plot(t[::step], fit[::step], lw=0.6, color="C1", label="findings fitted")
     ax[0].set_ylabel("um")
     ax[0].legend(loc="upper right", fontsize=8)
-    ax[1].plot(t, res, lw=0.4, color="C0", label="unexplained residual")
+    ax[1].plot(t[::step], res[::step], lw=0.4, color="C0", label="unexplained residual")
     ax[1].set_ylabel("um")
     ax[1].set_xlabel("program time (s)")
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -179,22 +178,6 @@ def pictures(d: Diagnosis, ctx: Context) -> dict[str, bytes]:
         fig.colorbar(sc, ax=ax, shrink=0.6, pad=0.16)
     out["residual_hemisphere"] = _png(fig, plt)
     return out
-
-
-def _broken(t: np.ndarray, *series: np.ndarray) -> tuple[np.ndarray, ...]:
-    """The series with a NaN put into every gap of the time axis (a dropout, a stretch
-    left out) longer than five of its usual steps, so that a line is not drawn across
-    what was not recorded."""
-    if len(t) < 3:
-        return (t, *series)
-    dt = np.diff(t)
-    usual = float(np.median(dt))
-    at = np.flatnonzero(dt > 5 * usual) + 1 if usual > 0 else np.array([], int)
-    if not len(at):
-        return (t, *series)
-    mids = 0.5 * (t[at - 1] + t[at])
-    return (np.insert(t, at, mids),
-            *(np.insert(np.asarray(y, float), at, np.nan) for y in series))
 
 
 def _png(fig, plt) -> bytes:

@@ -291,14 +291,3 @@ def test_a_lag_at_the_end_of_its_search_is_not_taken_for_the_effect():
     lag = ServoLag()
     assert lag.implausible({"tau_ms": float(lag.grid_ms[-1])}) is not None
     assert lag.implausible({"tau_ms": 30.0}) is None
-
-
-def test_the_residual_picture_breaks_its_lines_where_nothing_was_recorded():
-    from sdit_path.diagnose.report import _broken
-    t = np.r_[np.arange(0.0, 1.0, 0.002), np.arange(1.5, 2.0, 0.002)]  # a 0.5 s dropout
-    y = np.sin(t)
-    tb, yb = _broken(t, y)
-    assert np.isnan(yb).sum() == 1 and 1.0 < tb[np.isnan(yb)][0] < 1.5
-    assert np.array_equal(yb[~np.isnan(yb)], y) and np.all(np.diff(tb) > 0)
-    tc, yc = _broken(t[:500], y[:500])  # no gap: unchanged
-    assert np.array_equal(tc, t[:500]) and np.array_equal(yc, y[:500])
