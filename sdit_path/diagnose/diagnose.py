@@ -13,8 +13,10 @@ place and pass, never used for fitting - shrinks too.
 
 from __future__ import annotations
 
+import inspect
 import logging
 import math
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,7 +30,8 @@ from .align import Alignment, SetupStep, _at, _lsq, align, axis_acceleration_rea
     generic_columns, refine, setup_step
 from .context import Context, build_context, strided
 from .effects import GEOMETRIC, PRIOR_ORDER, Backlash, Effect, GeometryBeyond, LateralPlay, \
-    ReversalSpike, Samples, ScaleMismatch, ServoMismatch, Squareness, library, linear_axes
+    ReversalSpike, Samples, ScaleMismatch, ServoMismatch, Squareness, fitted_beside, library, \
+    linear_axes
 
 log = logging.getLogger(__name__)
 
@@ -347,10 +350,12 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
     and the effects to judge again."""
     X = _model_columns(ctx, lib, expected, findings)
     al, jump = _realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:]]), first_al)
-    if _profile_timing(ctx, lib, expected, t_m, y, pose, findings, al, jump):
+    changed, widen = _profile_timing(ctx, lib, expected, t_m, y, pose, findings, al, jump)
+    if changed:
         # the lagged findings' columns changed with it: the timing searched again
         X = _model_columns(ctx, lib, expected, findings)
         al, jump = _realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:]]), first_al)
+    al = _widened(al, widen)
     names = {f.effect for f in findings}
     if not partners:
         return al, jump, names
@@ -379,8 +384,19 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
             continue
         log.debug("aliased %s -> %s: rms %.5f vs %.5f, offset %.4f vs %.4f", f.effect, partner,
                   other.rms_um, al.rms_um, other.offset_s, al.offset_s)
+        worse, better = (al, other) if other.rms_um < al.rms_um else (other, al)
         if other.rms_um < al.rms_um:
             al, jump = other, jump_o
+        # the pair one feed cannot tell apart puts the start in different places (a lag
+        # carries its delay into the offset, a zero-phase smoothing does not: a smoothing
+        # read as a lag left the start 11.8 ms early against a stated 1.1 ms): where the
+        # other fits about as well, the timing is known no better than the two differ
+        n_fit = min(int(np.isfinite(y).sum()), _REFINE_SAMPLES)
+        dchi2 = n_fit * (worse.rms_um ** 2 - better.rms_um ** 2) / max(better.rms_um ** 2, 1e-30)
+        if dchi2 <= 9.0:
+            scale = math.sqrt(max(dchi2, 1.0))
+            al = _widened(al, (abs(worse.offset_s - better.offset_s) / scale,
+                               abs(worse.clock_ppm - better.clock_ppm) / scale))
         names.add(partner)
     return al, jump, names
 
@@ -449,7 +465,7 @@ def _realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
 
 def _profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
                     y: np.ndarray, pose: list[np.ndarray], findings: list, al: Alignment,
-                    jump: SetupStep | None) -> bool:
+                    jump: SetupStep | None) -> tuple[bool, tuple[float, float]]:
     """Lags trade with the recording's start: the alignment puts the reference lag into
     the offset, and a finding read through a lag (a servo mismatch reads the axis rates
     as late as the reference axis lags; an equal lag's shrink is read as late as the
@@ -458,10 +474,19 @@ def _profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: 
     at the grid's end 25 ms).  Each such parameter is profiled with the timing: for
     every other value of the effect's grid (then around the best one) the timing is
     polished with every column, the lowest residual wins and the finding's parameter is
-    set to it.  True when a parameter changed."""
+    set to it.
+
+    The profile also says how far the timing is known once the parameter is free: a
+    value whose fit is worse by ``dchi2`` (in units of the residual's variance over the
+    samples polished) with its timing ``d`` away implies a standard uncertainty of
+    ``d / sqrt(dchi2)`` on a quadratic profile (``d`` where the two fit alike).  True
+    when a parameter changed, and the largest such offset (s) and clock (ppm)
+    uncertainty over the values within 3 standard uncertainties."""
     changed = False
+    widen = [0.0, 0.0]
     allg = Samples(np.arange(ctx.n), ctx.t_s)
     yc = y if jump is None else y - jump.reading_um(ctx, al, t_m)
+    n_fit = min(int(np.isfinite(yc).sum()), _PROFILE_SAMPLES)
     by = {e.name: e for e in lib}
     for f in findings:
         eff = by[f.effect]
@@ -469,33 +494,57 @@ def _profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: 
             continue
         key, grid = eff.timing_parameter
         rest = _model_columns(ctx, lib, expected, [g for g in findings if g is not f])[:, 2:]
-        rms: dict[float, float] = {}
+        fits: dict[float, Alignment] = {}
         model = _TrialModel(ctx, expected, np.column_stack([*pose, rest]))
 
         def trial(c: float) -> float:
             c = float(c)
-            if c not in rms:
+            if c not in fits:
                 X = model.with_columns(eff.columns(ctx, allg, {**f.nonlinear, key: c})[0])
-                rms[c] = refine(ctx, X, t_m, yc, al.offset_s, al.clock_ppm, iterations=4,
-                                max_samples=30_000, check=False).rms_um
-            return rms[c]
+                fits[c] = refine(ctx, X, t_m, yc, al.offset_s, al.clock_ppm, iterations=4,
+                                 max_samples=_PROFILE_SAMPLES, check=False)
+            return fits[c].rms_um
 
         coarse = list(grid[::2]) + ([grid[-1]] if len(grid) % 2 == 0 else [])
         k = grid.index(min(coarse, key=trial))
         near = list(grid[max(k - 2, 0):k + 3])
         k = grid.index(min(near, key=trial))
         lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-        best = float(min(np.linspace(lo, hi, 7), key=trial))
-        log.debug("%s %s profiled with the timing: %.2f (%s)", f.effect, key, best,
-                  ", ".join(f"{c:g}: {v:.5f}" for c, v in sorted(rms.items())))
+        for c in np.linspace(lo, hi, 7):
+            trial(c)
+        rms = {c: a.rms_um for c, a in fits.items()}
+        best = min(rms, key=rms.get)  # a grid value may beat the finer ones
+        log.debug("%s %s profiled with the timing: %.4g (%s)", f.effect, key, best,
+                  ", ".join(f"{c:g}: {v:.5f} at {fits[c].offset_s:.4f} s" for c, v in sorted(rms.items())))
         if max(rms.values()) - rms[best] <= 1e-4 * rms[best]:
             # a flat profile (the finding explains next to nothing at this timing)
             # says nothing about the parameter: a tie must not move the start
             continue
+        b = fits[best]
+        for c, a in fits.items():
+            dchi2 = n_fit * (a.rms_um ** 2 - b.rms_um ** 2) / max(b.rms_um ** 2, 1e-30)
+            if dchi2 > 9.0:
+                continue
+            scale = math.sqrt(max(dchi2, 1.0))
+            widen[0] = max(widen[0], abs(a.offset_s - b.offset_s) / scale)
+            widen[1] = max(widen[1], abs(a.clock_ppm - b.clock_ppm) / scale)
         if best != f.nonlinear.get(key):
             f.nonlinear[key] = best
             changed = True
-    return changed
+    return changed, (widen[0], widen[1])
+
+
+#: samples a profiled parameter's timing is polished on, and a full alignment (refine's)
+_PROFILE_SAMPLES = 30_000
+_REFINE_SAMPLES = 120_000
+
+
+def _widened(al: Alignment, widen: tuple[float, float]) -> Alignment:
+    """``al`` with its uncertainties taking in what a profiled parameter leaves open."""
+    if widen[0] <= 0 and widen[1] <= 0:
+        return al
+    return dataclasses.replace(al, offset_std_s=float(math.hypot(al.offset_std_s, widen[0])),
+                               clock_std_ppm=float(math.hypot(al.clock_std_ppm, widen[1])))
 
 
 class _TrialModel:
@@ -538,7 +587,11 @@ def _partner_columns(ctx: Context, eff: Effect, expected: np.ndarray, t_m: np.nd
     # signature and would leave it nothing but its longest tail
     G = _at(ctx.t_s, np.column_stack([expected, np.ones(ctx.n), ctx.u]), tt)
     r = y[ok] - G @ _lsq(G, y[ok])
-    cand = _candidate(eff, ctx, Samples(idx, tt), r)
+    # judged as fitted together with the set-up (which shares a smoothing's or a lag's
+    # shrink while moving)
+    Q, sv, _ = np.linalg.svd(G, full_matrices=False)
+    with fitted_beside(Q[:, sv > sv[0] * 1e-10]):
+        cand = _candidate(eff, ctx, Samples(idx, tt), r)
     if cand is None:
         return None
     log.debug("partner %s: %s", eff.name, cand[0])
@@ -655,7 +708,10 @@ def _candidate(eff: Effect, ctx: Context, S: Samples, r: np.ndarray, pinned: dic
     ``pinned`` kept as given) and its columns there, or None when it has nothing to
     offer."""
     try:
-        nl = eff.search(ctx, S, r)
+        fixed = (pinned or {}).get(eff.name)
+        # an effect whose search takes what is pinned searches the rest at that value
+        nl = (eff.search(ctx, S, r, fixed=fixed) if fixed and "fixed" in
+              inspect.signature(eff.search).parameters else eff.search(ctx, S, r))
     except (ValueError, np.linalg.LinAlgError):
         return None
     if nl is None:

@@ -10,6 +10,8 @@ unit axis error), so they hold for 3- and 5-axis machines alike.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import hashlib
 
 from dataclasses import dataclass, field
@@ -44,10 +46,33 @@ class Design:
     nonlinear: dict = field(default_factory=dict)
 
 
+#: an orthonormal basis (n, k) of columns fitted beside a searched effect's, or None:
+#: set by :func:`fitted_beside` while a search runs
+_BESIDE: contextvars.ContextVar = contextvars.ContextVar("beside", default=None)
+
+
+@contextlib.contextmanager
+def fitted_beside(basis: np.ndarray | None):
+    """Within this block, every search judges its columns as fitted together with the
+    columns ``basis`` spans (``r`` orthogonal to them): the reduction a joint fit would
+    give.  A raw projection lets the earlier fit keep what the new columns share with it
+    (a set-up fitted alone takes part of a smoothing's shrink while moving, and the
+    smoothing's search then preferred its shortest filter)."""
+    token = _BESIDE.set(basis)
+    try:
+        yield
+    finally:
+        _BESIDE.reset(token)
+
+
 def _proj_gain(cols: np.ndarray, r: np.ndarray) -> float:
-    """Reduction of ``|r|^2`` by least squares on ``cols``."""
+    """Reduction of ``|r|^2`` by least squares on ``cols`` (fitted beside
+    :func:`fitted_beside`'s columns, if any)."""
     if cols.size == 0:
         return 0.0
+    Q = _BESIDE.get()
+    if Q is not None and Q.shape[0] == cols.shape[0]:
+        cols = cols - Q @ (Q.T @ cols)
     coef, *_ = np.linalg.lstsq(cols, r, rcond=None)
     fit = cols @ coef
     return float(r @ r - (r - fit) @ (r - fit))
@@ -131,6 +156,9 @@ class Effect:
     #: a nonlinear parameter that trades with the recording's start (a lag: the alignment
     #: puts it into the offset) and the grid it is profiled on with the timing, or None
     timing_parameter: tuple[str, tuple[float, ...]] | None = None
+    #: a lag at the far end of its grid is not this effect; other timing parameters (a
+    #: pulse's onset speed) may lie at either end
+    timing_end_implausible: bool = True
 
     #: how the effect's reading changes when the same path is run again: in the reverse
     #: direction it is multiplied by ``reverse`` (-1: odd in the velocity, +1: even;
@@ -148,7 +176,7 @@ class Effect:
             for pattern, lim in self.limits.items():
                 if isinstance(value, float) and _match(key, pattern) and abs(value) > lim:
                     return f"{key} = {value:.4g} exceeds the plausible {lim:g}"
-        if self.timing_parameter:
+        if self.timing_parameter and self.timing_end_implausible:
             # a lag at the far end of its search: the data want a longer one, which is not
             # this effect (a backlash on the equator layer, its play taken up over a slow
             # reversal, read as a mismatch with a 100 ms common lag beside a stick-slip)
@@ -391,10 +419,19 @@ class ReversalSpike(Effect):
     # through the velocity loop), it does not jump
     limits = {"height_*": 50.0, "tau_ms": 100.0}
     grid_ms = (5.0, 8.0, 12.0, 18.0, 25.0, 35.0, 50.0, 70.0, 100.0)
+    #: the rise (ms) is searched too: a velocity loop answers in 1-10 ms, and a rise
+    #: held at 3 ms on a pulse that rose over 3.9 ms bent the timing 2.8 ms while the
+    #: fit stayed at the noise (the pulses were the only timing in that trace)
+    rise_grid_ms = (1.0, 1.5, 2.0, 3.0, 4.0, 5.5, 7.5, 10.0)
     rise_ms = 3.0
     #: speeds (mm/s) at which the pulse may start; the first is the sign change itself
-    onsets_mm_s = (0.001, 0.01, 0.05, 0.2)
+    onsets_mm_s = (0.001, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
     discrete = ("onset_mm_s",)
+    #: where every reversal is about as brisk, a later onset moves every pulse alike:
+    #: the onset trades with the recording's start (the pulses may be all the timing a
+    #: trace holds) and is profiled with it
+    timing_parameter = ("onset_mm_s", onsets_mm_s)
+    timing_end_implausible = False
 
     @staticmethod
     def _since(ctx, j, onset):
@@ -408,29 +445,40 @@ class ReversalSpike(Effect):
             ctx._slow[key] = (since, d)
         return ctx._slow[key]
 
-    def _cols(self, ctx, s, tau_ms, onset=onsets_mm_s[0]):
+    def _cols(self, ctx, s, tau_ms, onset=onsets_mm_s[0], rise_ms=rise_ms):
         cols = []
         for j in linear_axes(ctx):
             since, d = self._since(ctx, j, onset)
             since = np.minimum(since[s.idx], 50.0)
-            decay = (1.0 - np.exp(-since / (self.rise_ms * 1e-3))) * np.exp(-since / (tau_ms * 1e-3))
+            decay = (1.0 - np.exp(-since / (rise_ms * 1e-3))) * np.exp(-since / (tau_ms * 1e-3))
             cols.append(-ctx.gain[s.idx, j] * d[s.idx] * decay)
         return np.column_stack(cols)
 
-    def search(self, ctx, s, r):
+    def search(self, ctx, s, r, fixed: dict | None = None):
+        """Per onset speed (or at the one in ``fixed``, profiled with the timing): the
+        time constant on its grid at the middle rise, the rise at that time constant,
+        then the time constant again at that rise; the best projection wins."""
         if not any(len(ctx.reversal_times[j]) for j in linear_axes(ctx)):
             return None
         best = None
-        for onset in self.onsets_mm_s:
-            score = lambda t: _proj_gain(self._cols(ctx, s, t, onset), r)  # noqa: E731
+        onsets = ((fixed["onset_mm_s"],) if fixed and "onset_mm_s" in fixed
+                  else self.onsets_mm_s)
+        for onset in onsets:
+            rise = self.rise_ms
+            score = lambda t: _proj_gain(self._cols(ctx, s, t, onset, rise), r)  # noqa: E731
+            tau = _grid_search(self.grid_ms, score, np.geomspace)
+            rise = _grid_search(self.rise_grid_ms,
+                                lambda q: _proj_gain(self._cols(ctx, s, tau, onset, q), r),
+                                np.geomspace)
             tau = _grid_search(self.grid_ms, score, np.geomspace)
             g = score(tau)
             if best is None or g > best[0]:
-                best = (g, tau, onset)
-        return {"tau_ms": best[1], "onset_mm_s": best[2]}
+                best = (g, tau, onset, rise)
+        return {"tau_ms": best[1], "onset_mm_s": best[2], "rise_ms": best[3]}
 
     def columns(self, ctx, s, nl):
-        return self._cols(ctx, s, nl["tau_ms"], nl.get("onset_mm_s", self.onsets_mm_s[0])), tuple(
+        return self._cols(ctx, s, nl["tau_ms"], nl.get("onset_mm_s", self.onsets_mm_s[0]),
+                          nl.get("rise_ms", self.rise_ms)), tuple(
             f"height_{ctx.axis_names[j]}_um" for j in linear_axes(ctx))
 
 
@@ -866,30 +914,77 @@ GEOMETRIC = ("setup_offset", "bar_length", "squareness", "scale_mismatch", "cycl
 
 
 class ContourSmoothing(Effect):
+    """The control rounds the path, in one of two ways.  A path-tolerance smoothing
+    (G642, COMPCAD) averages the path in space within each run and stops exactly at the
+    nodes (``window_mm``).  A set-point filter (an axial jerk filter, a cascade of moving
+    averages: about a Gaussian) acts in time on every axis and passes through the stops
+    - the axes leave a node early and reach it late, symmetric about the stop
+    (``sigma_ms``); its delay, if the control does not compensate it, is the start's.
+    Both are searched; the one whose column takes more of the residual is kept."""
+
     name, title = "contour_smoothing", "the control shortcuts the path (spatial low-pass)"
     reverse, feed_power = 1, 2.0
     limits = {"shortcut_um": 40.0}
     grid_mm = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0)
+    sigma_grid_ms = (2.0, 3.0, 5.0, 8.0, 12.0, 18.0, 25.0, 35.0, 50.0)
+
+    def __init__(self):
+        self._cache: dict = {}
 
     def shortcut_um(self, ctx: Context, idx: np.ndarray, window_mm: float) -> np.ndarray:
         """Radial deviation (um) at samples ``idx`` of the path averaged over
         ``window_mm`` of arc length within its run (zero while standing)."""
         return smoothed_radial_um(ctx, idx, window_mm)
 
+    def filtered_um(self, ctx: Context, idx: np.ndarray, sigma_ms: float) -> np.ndarray:
+        """Radial deviation (um) at samples ``idx`` of the ball path filtered in time by
+        a zero-phase Gaussian of ``sigma_ms``, through the stops."""
+        key = (id(ctx), round(sigma_ms, 9))
+        if key not in self._cache:
+            if len(self._cache) >= 24:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[key] = (ctx, time_filtered_radial_um(ctx, sigma_ms * 1e-3)
+                                .astype(np.float32))
+        return self._cache[key][1][idx].astype(float)
+
     def search(self, ctx, s, r):
-        return {"window_mm": _grid_search(
-            self.grid_mm, lambda w: _proj_gain(self.shortcut_um(ctx, s.idx, w)[:, None], r),
-            np.linspace)}
+        space = lambda w: _proj_gain(self.shortcut_um(ctx, s.idx, w)[:, None], r)  # noqa: E731
+        time = lambda q: _proj_gain(self.filtered_um(ctx, s.idx, q)[:, None], r)  # noqa: E731
+        w = _grid_search(self.grid_mm, space, np.linspace)
+        q = _grid_search(self.sigma_grid_ms, time, np.geomspace)
+        return {"window_mm": w} if space(w) >= time(q) else {"sigma_ms": q}
 
     def columns(self, ctx, s, nl):
+        if "sigma_ms" in nl:
+            return self.filtered_um(ctx, s.idx, nl["sigma_ms"])[:, None], ("scale",)
         return self.shortcut_um(ctx, s.idx, nl["window_mm"])[:, None], ("scale",)
 
     def physical(self, coef):
         return coef[0] > 0
 
     def parameters(self, coef, labels, nl, ctx):
-        w = nl["window_mm"] * float(np.sqrt(max(coef[0], 0.0)))
-        return {"window_mm": w, "shortcut_um": float(w * w / (24.0 * np.median(ctx.length_mm)) * 1e3)}
+        c = float(np.sqrt(max(coef[0], 0.0)))
+        radius = float(np.median(ctx.length_mm))
+        if "sigma_ms" in nl:
+            # the shortcut grows as (v sigma)^2 / (2 R): at the layer's typical feed
+            sigma = nl["sigma_ms"] * c
+            moving = ctx.speed_mm_per_s[ctx.moving]
+            v = float(np.median(moving)) if moving.size else 0.0
+            return {"sigma_ms": sigma,
+                    "shortcut_um": float((v * sigma * 1e-3) ** 2 / (2.0 * radius) * 1e3)}
+        w = nl["window_mm"] * c
+        return {"window_mm": w, "shortcut_um": float(w * w / (24.0 * radius) * 1e3)}
+
+
+def time_filtered_radial_um(ctx: Context, sigma_s: float) -> np.ndarray:
+    """The ball path in the table frame filtered by a zero-phase Gaussian of ``sigma_s``
+    in time (the ends held), as radial deviation in um on the whole trajectory grid."""
+    from scipy.ndimage import gaussian_filter1d
+
+    dt = float(np.median(np.diff(ctx.t_s)))
+    p0 = ctx.ball_mm[0]
+    smooth = gaussian_filter1d(ctx.ball_mm - p0, sigma_s / dt, axis=0, mode="nearest") + p0
+    return (np.linalg.norm(smooth - ctx.pivot_mm, axis=1) - ctx.length_mm) * 1e3
 
 
 def smoothed_radial_um(ctx: Context, idx: np.ndarray, window_mm: float) -> np.ndarray:
