@@ -455,26 +455,50 @@ class ReversalSpike(Effect):
         return np.column_stack(cols)
 
     def search(self, ctx, s, r, fixed: dict | None = None):
-        """Per onset speed (or at the one in ``fixed``, profiled with the timing): the
-        time constant on its grid at the middle rise, the rise at that time constant,
-        then the time constant again at that rise; the best projection wins."""
+        """Per onset speed (or at the one in ``fixed``, profiled with the timing) the
+        time constant on its grid at the middle rise; for the two best onsets the rise
+        and the time constant then in turn (they trade with each other: a longer rise
+        with a shorter decay), three rounds; the best projection wins."""
         if not any(len(ctx.reversal_times[j]) for j in linear_axes(ctx)):
             return None
-        best = None
         onsets = ((fixed["onset_mm_s"],) if fixed and "onset_mm_s" in fixed
                   else self.onsets_mm_s)
+        first = []
         for onset in onsets:
+            score = lambda t: _proj_gain(self._cols(ctx, s, t, onset, self.rise_ms), r)  # noqa: E731
+            tau = _grid_search(self.grid_ms, score, np.geomspace)
+            first.append((score(tau), onset, tau))
+        best = None
+        for _, onset, tau in sorted(first, key=lambda x: -x[0])[:2]:
             rise = self.rise_ms
-            score = lambda t: _proj_gain(self._cols(ctx, s, t, onset, rise), r)  # noqa: E731
-            tau = _grid_search(self.grid_ms, score, np.geomspace)
-            rise = _grid_search(self.rise_grid_ms,
-                                lambda q: _proj_gain(self._cols(ctx, s, tau, onset, q), r),
-                                np.geomspace)
-            tau = _grid_search(self.grid_ms, score, np.geomspace)
-            g = score(tau)
+            for _ in range(3):
+                rise = _grid_search(self.rise_grid_ms,
+                                    lambda q: _proj_gain(self._cols(ctx, s, tau, onset, q), r),
+                                    np.geomspace)
+                tau = _grid_search(self.grid_ms,
+                                   lambda t: _proj_gain(self._cols(ctx, s, t, onset, rise), r),
+                                   np.geomspace)
+            g = _proj_gain(self._cols(ctx, s, tau, onset, rise), r)
             if best is None or g > best[0]:
                 best = (g, tau, onset, rise)
-        return {"tau_ms": best[1], "onset_mm_s": best[2], "rise_ms": best[3]}
+        g, tau, onset, rise = best
+        # the two together, between the grids' points (a simplex in their logarithms)
+        from scipy.optimize import minimize
+
+        lo = np.log([self.grid_ms[0], self.rise_grid_ms[0]])
+        hi = np.log([self.grid_ms[-1], self.rise_grid_ms[-1]])
+
+        def loss(z):
+            t, q = np.exp(np.clip(z, lo, hi))
+            return -_proj_gain(self._cols(ctx, s, t, onset, q), r)
+
+        res = minimize(loss, np.log([tau, rise]), method="Nelder-Mead",
+                       options={"xatol": 0.01, "fatol": 1e-9 * max(g, 1e-30), "maxfev": 60,
+                                "initial_simplex": np.log([[tau, rise], [tau * 1.1, rise],
+                                                           [tau, rise * 1.15]])})
+        if -res.fun > g:
+            tau, rise = (float(v) for v in np.exp(np.clip(res.x, lo, hi)))
+        return {"tau_ms": tau, "onset_mm_s": onset, "rise_ms": rise}
 
     def columns(self, ctx, s, nl):
         return self._cols(ctx, s, nl["tau_ms"], nl.get("onset_mm_s", self.onsets_mm_s[0]),
@@ -983,7 +1007,8 @@ def time_filtered_radial_um(ctx: Context, sigma_s: float) -> np.ndarray:
 
     dt = float(np.median(np.diff(ctx.t_s)))
     p0 = ctx.ball_mm[0]
-    smooth = gaussian_filter1d(ctx.ball_mm - p0, sigma_s / dt, axis=0, mode="nearest") + p0
+    smooth = gaussian_filter1d(ctx.ball_mm - p0, sigma_s / dt, axis=0, mode="nearest",
+                               truncate=6.0) + p0
     return (np.linalg.norm(smooth - ctx.pivot_mm, axis=1) - ctx.length_mm) * 1e3
 
 

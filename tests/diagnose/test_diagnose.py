@@ -291,3 +291,71 @@ def test_a_lag_at_the_end_of_its_search_is_not_taken_for_the_effect():
     lag = ServoLag()
     assert lag.implausible({"tau_ms": float(lag.grid_ms[-1])}) is not None
     assert lag.implausible({"tau_ms": 30.0}) is None
+
+
+def test_a_friction_pulse_is_found_with_its_rise(setup):
+    """A pulse that rises over 6 ms (a slower velocity loop than the 3 ms the search
+    starts from) and starts at 0.02 mm/s is found with that rise and onset: held at
+    3 ms, the timing took up the difference in shape (2.8 ms on an independent
+    recording whose pulses were its only timing)."""
+    from sdit_path.diagnose.effects import ReversalSpike, Samples
+
+    _, ctx, _ = setup
+    s = Samples(np.arange(ctx.n), ctx.t_s)
+    spike = ReversalSpike()
+    truth = {"tau_ms": 30.0, "onset_mm_s": 0.02, "rise_ms": 6.0}
+    C = spike.columns(ctx, s, truth)[0]
+    r = C @ np.full(C.shape[1], 8.0) + np.random.default_rng(7).normal(0, 0.1, ctx.n)
+    nl = spike.search(ctx, s, r)
+    assert nl["onset_mm_s"] == 0.02, nl
+    assert nl["rise_ms"] == pytest.approx(6.0, rel=0.15), nl
+    assert nl["tau_ms"] == pytest.approx(30.0, rel=0.15), nl
+    # the onset pinned (profiled with the timing): the rest is searched at it
+    pinned = spike.search(ctx, s, r, fixed={"onset_mm_s": 0.05})
+    assert pinned["onset_mm_s"] == 0.05
+
+
+def test_a_set_point_filter_shortens_a_circle_as_a_gaussian_does():
+    """The time-domain smoothing (a zero-phase Gaussian set-point filter, through the
+    stops) against the closed form: a ball running a circle of radius R at speed v,
+    filtered by a Gaussian of sigma, runs a circle of radius R exp(-(v sigma / R)^2 / 2);
+    standing still it stays where it is."""
+    from types import SimpleNamespace
+
+    from sdit_path.diagnose.effects import time_filtered_radial_um
+
+    R, v, sigma, dt = 150.0, 2000.0 / 60.0, 0.02, 0.001
+    t = np.arange(0.0, 60.0, dt)
+    angle = np.where(t < 10.0, 0.0, (t - 10.0) * v / R)
+    ball = np.column_stack([R * np.cos(angle), R * np.sin(angle), np.zeros_like(t)])
+    ctx = SimpleNamespace(t_s=t, ball_mm=ball, pivot_mm=np.zeros(3),
+                          length_mm=np.full(len(t), R))
+    radial = time_filtered_radial_um(ctx, sigma)
+    exact = R * (np.exp(-0.5 * (v * sigma / R) ** 2) - 1.0) * 1e3
+    steady = (t > 12.0) & (t < 58.0)
+    assert np.max(np.abs(radial[steady] - exact)) < 1e-4, (radial[steady].min(), exact)
+    assert np.max(np.abs(radial[t < 9.0])) < 1e-9
+    # through the stop: the axes leave early, the bar reads the start before it comes
+    assert np.abs(radial[(t > 9.95) & (t < 10.0)]).max() > 1e-3
+
+
+def test_a_search_beside_the_set_up_judges_the_joint_fit():
+    """Within ``fitted_beside``, a column's projection gain is what fitting it together
+    with the basis' columns takes off the residual (a raw projection let the set-up keep
+    a smoothing's shrink, and the smoothing's search chose its shortest filter)."""
+    from sdit_path.diagnose.effects import _proj_gain, fitted_beside
+
+    rng = np.random.default_rng(3)
+    G = rng.normal(size=(500, 4))
+    c = 0.6 * G[:, :1] + rng.normal(size=(500, 1))
+    y = G @ rng.normal(size=4) + 2.0 * c[:, 0] + rng.normal(size=500)
+
+    def rss(A):
+        return float(np.sum((y - A @ np.linalg.lstsq(A, y, rcond=None)[0]) ** 2))
+
+    r = y - G @ np.linalg.lstsq(G, y, rcond=None)[0]
+    Q = np.linalg.svd(G, full_matrices=False)[0]
+    with fitted_beside(Q):
+        joint = _proj_gain(c, r)
+    assert joint == pytest.approx(rss(G) - rss(np.column_stack([G, c])), rel=1e-9)
+    assert abs(_proj_gain(c, r) - joint) > 1e-3 * joint  # outside the block: raw again
