@@ -454,43 +454,61 @@ class ReversalSpike(Effect):
             cols.append(-ctx.gain[s.idx, j] * d[s.idx] * decay)
         return np.column_stack(cols)
 
+    def _scorer(self, ctx, s, r, onset):
+        """``score(tau_ms, rise_ms)``: :func:`_proj_gain` of the pulses' columns, from
+        the samples within a second of a reversal only (beyond it the longest pulse has
+        decayed to e^-10) and the columns' 3 x 3 normal equations; None without them
+        (or with :func:`fitted_beside`'s basis, which needs every sample)."""
+        if _BESIDE.get() is not None:
+            return lambda t, q: _proj_gain(self._cols(ctx, s, t, onset, q), r)
+        since, weight = [], []
+        for j in linear_axes(ctx):
+            sj, d = self._since(ctx, j, onset)
+            since.append(sj[s.idx])
+            weight.append(-ctx.gain[s.idx, j] * d[s.idx])
+        since, weight = np.column_stack(since), np.column_stack(weight)
+        near = np.flatnonzero((since < 1.0).any(axis=1))
+        since, weight, rr = since[near], weight[near], r[near]
+
+        def score(tau_ms, rise_ms):
+            C = weight * ((1.0 - np.exp(-since / (rise_ms * 1e-3)))
+                          * np.exp(-since / (tau_ms * 1e-3)))
+            b = C.T @ rr
+            coef = np.linalg.lstsq(C.T @ C, b, rcond=None)[0]
+            return float(coef @ b)
+
+        return score
+
     def search(self, ctx, s, r, fixed: dict | None = None):
         """Per onset speed (or at the one in ``fixed``, profiled with the timing) the
-        time constant on its grid at the middle rise; for the two best onsets the rise
-        and the time constant then in turn (they trade with each other: a longer rise
-        with a shorter decay), three rounds; the best projection wins."""
+        time constant on its grid at the middle rise; for the best onset the rise and
+        the time constant then in turn (they trade with each other: a longer rise with
+        a shorter decay), twice, and together between the grids' points (a simplex in
+        their logarithms)."""
         if not any(len(ctx.reversal_times[j]) for j in linear_axes(ctx)):
             return None
         onsets = ((fixed["onset_mm_s"],) if fixed and "onset_mm_s" in fixed
                   else self.onsets_mm_s)
-        first = []
-        for onset in onsets:
-            score = lambda t: _proj_gain(self._cols(ctx, s, t, onset, self.rise_ms), r)  # noqa: E731
-            tau = _grid_search(self.grid_ms, score, np.geomspace)
-            first.append((score(tau), onset, tau))
         best = None
-        for _, onset, tau in sorted(first, key=lambda x: -x[0])[:2]:
-            rise = self.rise_ms
-            for _ in range(3):
-                rise = _grid_search(self.rise_grid_ms,
-                                    lambda q: _proj_gain(self._cols(ctx, s, tau, onset, q), r),
-                                    np.geomspace)
-                tau = _grid_search(self.grid_ms,
-                                   lambda t: _proj_gain(self._cols(ctx, s, t, onset, rise), r),
-                                   np.geomspace)
-            g = _proj_gain(self._cols(ctx, s, tau, onset, rise), r)
+        for onset in onsets:
+            score = self._scorer(ctx, s, r, onset)
+            tau = _grid_search(self.grid_ms, lambda t: score(t, self.rise_ms), np.geomspace)
+            g = score(tau, self.rise_ms)
             if best is None or g > best[0]:
-                best = (g, tau, onset, rise)
-        g, tau, onset, rise = best
-        # the two together, between the grids' points (a simplex in their logarithms)
+                best = (g, onset, tau, score)
+        g, onset, tau, score = best
+        rise = self.rise_ms
+        for _ in range(2):
+            rise = _grid_search(self.rise_grid_ms, lambda q: score(tau, q), np.geomspace)
+            tau = _grid_search(self.grid_ms, lambda t: score(t, rise), np.geomspace)
+        g = score(tau, rise)
         from scipy.optimize import minimize
 
         lo = np.log([self.grid_ms[0], self.rise_grid_ms[0]])
         hi = np.log([self.grid_ms[-1], self.rise_grid_ms[-1]])
 
         def loss(z):
-            t, q = np.exp(np.clip(z, lo, hi))
-            return -_proj_gain(self._cols(ctx, s, t, onset, q), r)
+            return -score(*np.exp(np.clip(z, lo, hi)))
 
         res = minimize(loss, np.log([tau, rise]), method="Nelder-Mead",
                        options={"xatol": 0.01, "fatol": 1e-9 * max(g, 1e-30), "maxfev": 60,
@@ -498,7 +516,7 @@ class ReversalSpike(Effect):
                                                            [tau, rise * 1.15]])})
         if -res.fun > g:
             tau, rise = (float(v) for v in np.exp(np.clip(res.x, lo, hi)))
-        return {"tau_ms": tau, "onset_mm_s": onset, "rise_ms": rise}
+        return {"tau_ms": float(tau), "onset_mm_s": onset, "rise_ms": float(rise)}
 
     def columns(self, ctx, s, nl):
         return self._cols(ctx, s, nl["tau_ms"], nl.get("onset_mm_s", self.onsets_mm_s[0]),

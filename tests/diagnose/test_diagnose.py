@@ -313,6 +313,13 @@ def test_a_friction_pulse_is_found_with_its_rise(setup):
     # the onset pinned (profiled with the timing): the rest is searched at it
     pinned = spike.search(ctx, s, r, fixed={"onset_mm_s": 0.05})
     assert pinned["onset_mm_s"] == 0.05
+    # the search's scorer (the samples near a reversal, normal equations) gives the
+    # projection gain of the whole columns
+    from sdit_path.diagnose.effects import _proj_gain
+
+    for tau, rise in ((30.0, 6.0), (100.0, 1.0), (5.0, 10.0)):
+        whole = _proj_gain(spike.columns(ctx, s, {**truth, "tau_ms": tau, "rise_ms": rise})[0], r)
+        assert spike._scorer(ctx, s, r, 0.02)(tau, rise) == pytest.approx(whole, rel=1e-6)
 
 
 def test_a_set_point_filter_shortens_a_circle_as_a_gaussian_does():
