@@ -13,7 +13,6 @@ place and pass, never used for fitting - shrinks too.
 
 from __future__ import annotations
 
-import inspect
 import logging
 import math
 import dataclasses
@@ -710,8 +709,8 @@ def _candidate(eff: Effect, ctx: Context, S: Samples, r: np.ndarray, pinned: dic
     try:
         fixed = (pinned or {}).get(eff.name)
         # an effect whose search takes what is pinned searches the rest at that value
-        nl = (eff.search(ctx, S, r, fixed=fixed) if fixed and "fixed" in
-              inspect.signature(eff.search).parameters else eff.search(ctx, S, r))
+        nl = (eff.search(ctx, S, r, fixed=fixed) if fixed and eff.searches_with_fixed
+              else eff.search(ctx, S, r))
     except (ValueError, np.linalg.LinAlgError):
         return None
     if nl is None:

@@ -65,6 +65,18 @@ def fitted_beside(basis: np.ndarray | None):
         _BESIDE.reset(token)
 
 
+def _memo(cache: dict, ctx: Context, value: float, make, digits: int = 9):
+    """``make()`` for one context and parameter value, kept in ``cache`` (at most 24
+    entries: the grid and the profiled values of one diagnosis).  The context rides
+    along with its result so that its id cannot be reused while cached."""
+    key = (id(ctx), round(value, digits))
+    if key not in cache:
+        if len(cache) >= 24:
+            cache.pop(next(iter(cache)))
+        cache[key] = (ctx, make())
+    return cache[key][1]
+
+
 def _proj_gain(cols: np.ndarray, r: np.ndarray) -> float:
     """Reduction of ``|r|^2`` by least squares on ``cols`` (fitted beside
     :func:`fitted_beside`'s columns, if any)."""
@@ -159,6 +171,8 @@ class Effect:
     #: a lag at the far end of its grid is not this effect; other timing parameters (a
     #: pulse's onset speed) may lie at either end
     timing_end_implausible: bool = True
+    #: ``search`` takes ``fixed=`` (parameters pinned by a profile with the timing)
+    searches_with_fixed: bool = False
 
     #: how the effect's reading changes when the same path is run again: in the reverse
     #: direction it is multiplied by ``reverse`` (-1: odd in the velocity, +1: even;
@@ -250,18 +264,14 @@ class ServoLag(Effect):
     def shrink_um(self, ctx: Context, idx: np.ndarray, tau_ms: float) -> np.ndarray:
         """Radial deviation (um) at trajectory samples ``idx`` when every axis follows
         its command through a first-order lag ``tau_ms`` (Kv = 1/tau)."""
-        key = (id(ctx), round(tau_ms, 9))
-        if key not in self._cache:
-            if len(self._cache) >= 24:
-                self._cache.pop(next(iter(self._cache)))
-            # the context rides along so that its id cannot be reused while cached
-            self._cache[key] = (ctx, lagged_radial_um(ctx, tau_ms * 1e-3).astype(np.float32))
+        radial = _memo(self._cache, ctx, tau_ms,
+                       lambda: lagged_radial_um(ctx, tau_ms * 1e-3).astype(np.float32))
         # the lag also delays the machine along its path, and that delay cannot be told
         # from a later start: the alignment has put it into the offset, so program time
         # here is the commanded time of where the machine is - read the shrink tau later
         dt = (ctx.t_s[-1] - ctx.t_s[0]) / max(ctx.n - 1, 1)
         shifted = np.minimum(idx + int(round(tau_ms * 1e-3 / dt)), ctx.n - 1)
-        return self._cache[key][1][shifted].astype(float)
+        return radial[shifted].astype(float)
 
     def search(self, ctx, s, r):
         # a fixed grid (cached across steps): every third value, then the neighbours
@@ -323,23 +333,22 @@ class ServoMismatch(Effect):
         offset, so in program time the rate is read about tau late; read without that
         lag, the mismatch (microns where the geometry reads tenths) drags the start
         12-13 ms late to meet it."""
-        key = (id(ctx), round(common_ms, 6))
-        if key not in self._cache:
-            if len(self._cache) >= 24:  # the grid and the profiled values of one diagnosis
-                self._cache.pop(next(iter(self._cache)))
-            others, _ = self._axes(ctx)
-            v = ctx.qdot[:, others].astype(float)
-            if common_ms > 0 and len(v):
-                from scipy.signal import lfilter
+        return _memo(self._cache, ctx, common_ms, lambda: self._lagged_rates(ctx, common_ms),
+                     digits=6)
 
-                dt = (ctx.t_s[-1] - ctx.t_s[0]) / max(ctx.n - 1, 1)
-                k = 2.0 * common_ms * 1e-3 / dt
-                for _ in range(2):  # Tustin, from rest at the first rate
-                    v = lfilter([1.0, 1.0], [1.0 + k, 1.0 - k], v - v[0], axis=0) + v[0]
-                shift = int(round(common_ms * 1e-3 / dt))
-                v = np.concatenate([v[shift:], np.repeat(v[-1:], min(shift, len(v)), axis=0)])
-            self._cache[key] = (ctx, v)  # the context keeps its id unique while cached
-        return self._cache[key][1]
+    def _lagged_rates(self, ctx, common_ms):
+        others, _ = self._axes(ctx)
+        v = ctx.qdot[:, others].astype(float)
+        if common_ms > 0 and len(v):
+            from scipy.signal import lfilter
+
+            dt = (ctx.t_s[-1] - ctx.t_s[0]) / max(ctx.n - 1, 1)
+            k = 2.0 * common_ms * 1e-3 / dt
+            for _ in range(2):  # Tustin, from rest at the first rate
+                v = lfilter([1.0, 1.0], [1.0 + k, 1.0 - k], v - v[0], axis=0) + v[0]
+            shift = int(round(common_ms * 1e-3 / dt))
+            v = np.concatenate([v[shift:], np.repeat(v[-1:], min(shift, len(v)), axis=0)])
+        return v
 
     def search(self, ctx, s, r):
         if not self._axes(ctx)[0]:
@@ -432,6 +441,7 @@ class ReversalSpike(Effect):
     #: trace holds) and is profiled with it
     timing_parameter = ("onset_mm_s", onsets_mm_s)
     timing_end_implausible = False
+    searches_with_fixed = True
 
     @staticmethod
     def _since(ctx, j, onset):
@@ -981,13 +991,8 @@ class ContourSmoothing(Effect):
     def filtered_um(self, ctx: Context, idx: np.ndarray, sigma_ms: float) -> np.ndarray:
         """Radial deviation (um) at samples ``idx`` of the ball path filtered in time by
         a zero-phase Gaussian of ``sigma_ms``, through the stops."""
-        key = (id(ctx), round(sigma_ms, 9))
-        if key not in self._cache:
-            if len(self._cache) >= 24:
-                self._cache.pop(next(iter(self._cache)))
-            self._cache[key] = (ctx, time_filtered_radial_um(ctx, sigma_ms * 1e-3)
-                                .astype(np.float32))
-        return self._cache[key][1][idx].astype(float)
+        return _memo(self._cache, ctx, sigma_ms, lambda: time_filtered_radial_um(
+            ctx, sigma_ms * 1e-3).astype(np.float32))[idx].astype(float)
 
     def search(self, ctx, s, r):
         space = lambda w: _proj_gain(self.shortcut_um(ctx, s.idx, w)[:, None], r)  # noqa: E731
