@@ -348,12 +348,14 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
     also tried with the partner in its place.  The alignment, the set-up step (or None)
     and the effects to judge again."""
     X = _model_columns(ctx, lib, expected, findings)
-    al, jump = _realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:]]), first_al)
+    D = _shape_columns(ctx, lib, findings)
+    al, jump = _realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:], D]), first_al)
     changed, widen = _profile_timing(ctx, lib, expected, t_m, y, pose, findings, al, jump)
     if changed:
         # the lagged findings' columns changed with it: the timing searched again
         X = _model_columns(ctx, lib, expected, findings)
-        al, jump = _realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:]]), first_al)
+        D = _shape_columns(ctx, lib, findings)
+        al, jump = _realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:], D]), first_al)
     al = _widened(al, widen)
     names = {f.effect for f in findings}
     if not partners:
@@ -688,6 +690,44 @@ def dynamic_columns(ctx: Context) -> np.ndarray:
             cols.append(ReversalSpike().columns(ctx, allg, {"tau_ms": 25.0, "onset_mm_s": onset})[0])
         cols.append(LateralPlay().columns(ctx, allg, {})[0])
     return np.column_stack(cols)
+
+
+def _shape_columns(ctx, lib, findings) -> np.ndarray:
+    """The first-order change of each finding's columns with its continuous nonlinear
+    parameters (a pulse's rise and decay, a play's width, a mode's frequency): fitted
+    beside the timing, the shape is free within its linearisation, so that the timing's
+    uncertainty takes in what the shape leaves open instead of holding the shape found
+    at the first timing.  Parameters profiled with the timing and discrete ones are left
+    out."""
+    allg = Samples(np.arange(ctx.n), ctx.t_s)
+    by = {e.name: e for e in lib}
+    out = []
+    for f in findings:
+        eff = by[f.effect]
+        if f.effect == "vibration" and f.nonlinear.get("steady"):
+            continue
+        skip = set(getattr(eff, "discrete", ())) | (
+            {eff.timing_parameter[0]} if eff.timing_parameter else set())
+        try:
+            C = eff.columns(ctx, allg, f.nonlinear)[0]
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        for key, value in f.nonlinear.items():
+            if key in skip or isinstance(value, bool) or not isinstance(value, (int, float)):
+                continue
+            h = 0.01 * abs(value) if value else 0.01
+            try:
+                up = eff.columns(ctx, allg, {**f.nonlinear, key: value + h})[0]
+                down = eff.columns(ctx, allg, {**f.nonlinear, key: value - h})[0]
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+            if up.shape != C.shape or not (np.isfinite(up).all() and np.isfinite(down).all()):
+                continue
+            Dk = (up - down) / (2 * h)
+            keep = np.abs(Dk).max(axis=0) > 1e-9 * max(float(np.abs(C).max()), 1e-300)
+            if keep.any():
+                out.append(Dk[:, keep])
+    return np.column_stack(out) if out else np.zeros((ctx.n, 0))
 
 
 def _model_columns(ctx, lib, expected, findings) -> np.ndarray:
