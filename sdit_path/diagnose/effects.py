@@ -528,6 +528,16 @@ class ReversalSpike(Effect):
             tau, rise = (float(v) for v in np.exp(np.clip(res.x, lo, hi)))
         return {"tau_ms": float(tau), "onset_mm_s": onset, "rise_ms": float(rise)}
 
+    def implausible(self, params):
+        why = super().implausible(params)
+        tau = params.get("tau_ms")
+        if why is None and isinstance(tau, float) and tau <= self.grid_ms[0] * (1 + 1e-9):
+            # the data want a pulse shorter than the search's shortest decay: friction
+            # decays over 10-100 ms (the brief), so this is something else's edge (a
+            # stick-slip's slip read as a companion pulse beside it)
+            return f"tau_ms = {tau:.4g} at the short end of its search ({self.grid_ms[0]:g})"
+        return why
+
     def columns(self, ctx, s, nl):
         return self._cols(ctx, s, nl["tau_ms"], nl.get("onset_mm_s", self.onsets_mm_s[0]),
                           nl.get("rise_ms", self.rise_ms)), tuple(
