@@ -291,6 +291,15 @@ def test_a_lag_at_the_end_of_its_search_is_not_taken_for_the_effect():
     lag = ServoLag()
     assert lag.implausible({"tau_ms": float(lag.grid_ms[-1])}) is not None
     assert lag.implausible({"tau_ms": 30.0}) is None
+    # a friction pulse at the short end of its decay's search: shorter than friction's
+    # 10-100 ms (a stick-slip's edge), refused; its onset may lie at either end
+    from sdit_path.diagnose.effects import ReversalSpike
+
+    spike = ReversalSpike()
+    short = {"tau_ms": float(spike.grid_ms[0]), "rise_ms": 1.0, "height_X_um": 1.1,
+             "onset_mm_s": float(spike.onsets_mm_s[-1])}
+    assert "short end" in (spike.implausible(short) or "")
+    assert spike.implausible({**short, "tau_ms": 20.0}) is None
 
 
 def test_a_friction_pulse_is_found_with_its_rise(setup):
@@ -366,3 +375,26 @@ def test_a_search_beside_the_set_up_judges_the_joint_fit():
         joint = _proj_gain(c, r)
     assert joint == pytest.approx(rss(G) - rss(np.column_stack([G, c])), rel=1e-9)
     assert abs(_proj_gain(c, r) - joint) > 1e-3 * joint  # outside the block: raw again
+
+
+def test_every_axis_reversals_are_both_fitted_and_held_out(setup):
+    """An effect that acts only at an axis's reversals is seen by the fit and checked on
+    held-out data: whatever the stagger of the stretches gives (here forced to hold out
+    all of them, then none), each linear axis keeps reversals on both sides."""
+    from sdit_path.diagnose.diagnose import _balance_reversals, _held_stretches, _units
+    from sdit_path.diagnose.effects import linear_axes
+
+    _, ctx, _ = setup
+    units = _units(ctx)
+    n_units = int(units.max()) + 1
+    for held in (_held_stretches(ctx, 3), _balance_reversals(ctx, np.ones(n_units, bool), 3),
+                 _balance_reversals(ctx, np.zeros(n_units, bool), 3)):
+        checked = 0
+        for j in linear_axes(ctx):
+            at = np.minimum(np.searchsorted(ctx.t_s, np.asarray(ctx.reversal_times[j]) + 0.01),
+                            ctx.n - 1)
+            us = sorted(set(units[at].tolist()))
+            if len(us) >= 2:
+                checked += 1
+                assert 0 < held[us].sum() < len(us), (ctx.axis_names[j], held[us])
+        assert checked >= 2
