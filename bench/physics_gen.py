@@ -16,10 +16,12 @@ Effects (physics, not the diagnoser's compact models):
   (friction breakaway through the velocity loop) and decays over tens of ms;
 - stick_slip: while an axis crawls, it sticks (lags further behind its command) until
   the spring force breaks the static friction, then slips forward past the command;
-- scale_mismatch, squareness, cyclic_error: position-locked geometry;
+- scale_mismatch, squareness, cyclic_error: position-locked geometry of the machine's
+  axes;
 - vibration: a structural mode of one axis excited by its acceleration, seen along the
   bar;
-- thermal_drift: the spindle walks away from the pivot linearly in time;
+- thermal_drift: the spindle walks away from the pivot linearly in time, in the
+  machine's frame (it does not turn with a rotary table);
 - contour_smoothing: the control's zero-phase path smoothing (passes through stops);
 - setup: the pivot and tool ball centring, always present (a set-up residual), plus a
   bar length offset.
@@ -302,10 +304,12 @@ def apply(case: Case | None, pd_: PlanData, rng: np.random.Generator
         j = idx[P["axis"]]
         q[:, j] += P["amplitude_um"] * 1e-3 * np.sin(2 * math.pi * q[:, j] / P["pitch_mm"] + P["phase"])
     elif e == "squareness":
+        # the guideways of two linear axes not at right angles: moving axis b moves the
+        # slide along a as well - on the machine's axes (not in the table's frame, which
+        # turns with a rotary table: a squareness does not turn with it)
         a, b = P["pair"]
-        pos = ball_in_table(pd_, pd_.q)
-        ia, ib = "XYZ".index(a), "XYZ".index(b)
-        extra[:, ia] += P["urad"] * 1e-6 * (pos[:, ib] - pos[0, ib])
+        ia, ib = idx[a], idx[b]
+        q[:, ia] += P["urad"] * 1e-6 * (q[:, ib] - q[0, ib])
     elif e == "vibration":
         j = idx[P["axis"]]
         acc = np.gradient(np.gradient(q[:, j], t), t) * 1e-3  # m/s^2
@@ -318,7 +322,11 @@ def apply(case: Case | None, pd_: PlanData, rng: np.random.Generator
         x = lfilter(np.ravel(b), a, acc) * P["gain_um_per_m_s2"] * 1e-3
         q[:, j] += x
     elif e == "thermal_drift":
-        extra += np.outer(t / 3600.0, np.array(P["um_per_h"]) * 1e-3)
+        # the spindle grows in the machine's frame: with a rotary table the drift turns
+        # in the table's frame, where the ball is measured from the pivot
+        Rw, _ = _chain(pd_, q, pd_.workpiece)
+        drift = np.outer(t / 3600.0, np.array(P["um_per_h"]) * 1e-3)
+        extra += np.einsum("nji,nj->ni", Rw, drift)
     elif e == "mount_slip":  # the pivot's magnetic mount gives way once
         extra[t >= P["at"] * t[-1]] -= np.array(P["shift_um"]) * 1e-3
     elif e in ("guideway_bump", "cubic_straightness"):  # straightness of one axis

@@ -57,6 +57,9 @@ class Context:
     run_start_mm: np.ndarray
     run_end_mm: np.ndarray
     observable: tuple[int, ...] = ()
+    #: unit bar direction in the machine's (bed) frame, ``(n, 3)``: a spindle's drift is
+    #: seen through it (``u`` turns with a rotary table); None: the same as ``u``
+    u_bed: np.ndarray | None = None
     _slow: dict = field(default_factory=dict)
 
     def slow_state(self, j: int, speed: float) -> tuple[np.ndarray, np.ndarray]:
@@ -192,8 +195,13 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     first = np.maximum.accumulate(np.where(new_run, np.arange(len(t)), 0))
     last_idx = np.r_[np.flatnonzero(new_run)[1:] - 1, len(t) - 1]
     run_no = np.cumsum(new_run) - 1
+    u_bed = None
+    if any(kin.axes[i].is_rotary for i in kin.workpiece):
+        rot, _ = kin.table_transform(q)  # p_bed = rot p_table + trans
+        u_bed = np.einsum("nij,nj->ni", rot, u)
     return Context(t, ball, u, length, speed, q, qdot, gain, direction, since,
                    tuple(rev_times), at_rev, moving, np.asarray(traj.segment, dtype=object), phase,
                    tuple(kin.names), linear, pivot, run_id.astype(int), v, acc, jerk, arc,
                    integral, arc[first], arc[last_idx][run_no],
-                   tuple(j for j in range(m) if float(np.sqrt(np.mean(gain[:, j] ** 2))) > 1e-6))
+                   tuple(j for j in range(m) if float(np.sqrt(np.mean(gain[:, j] ** 2))) > 1e-6),
+                   u_bed)

@@ -79,6 +79,8 @@ class Finding:
     geometry_doubt: bool = False
     ambiguous_with: list = field(default_factory=list)
     separate_by: str = ""
+    #: parameters the bar cannot see in this program (not estimated, not reported)
+    unseen: list = field(default_factory=list)
 
 
 @dataclass
@@ -216,6 +218,22 @@ def _solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:
     # the data cannot tell apart gets the minimum-norm value, not 1e8
     coef, *_ = np.linalg.lstsq(A / scale, y, rcond=1e-5)
     return coef / scale
+
+
+def _seen_parameters(eff: Effect, C: np.ndarray, coef: np.ndarray, labels, nl: dict,
+                     ctx: Context) -> tuple[dict, list]:
+    """A finding's parameters without those the bar cannot see (a column below
+    :func:`_solve`'s threshold everywhere: a spindle's Y drift on a B-C table set-up that
+    keeps the bar in the XZ plane), which least squares leaves at 0 and which are not
+    estimates; and the names of those left out."""
+    blind = np.sqrt((C * C).sum(0)) < 1e-8 * math.sqrt(max(len(C), 1))
+    if not blind.any():
+        return eff.parameters(coef, labels, nl, ctx), []
+    coef = np.where(blind, np.nan, coef)
+    with np.errstate(invalid="ignore"):
+        out = eff.parameters(coef, labels, nl, ctx)
+    unseen = [k for k, v in out.items() if isinstance(v, float) and math.isnan(v)]
+    return {k: v for k, v in out.items() if k not in unseen}, unseen
 
 
 def _heldout_need(opt: "Options", mse_ho: float, noise: float, C_ho: np.ndarray) -> float:
@@ -707,7 +725,7 @@ def dynamic_columns(ctx: Context) -> np.ndarray:
     friction spikes)."""
     allg = Samples(np.arange(ctx.n), ctx.t_s)
     cols = [ServoMismatch().columns(ctx, allg, {})[0]]
-    cols.append(ctx.u * (ctx.t_s / 3600.0)[:, None])
+    cols.append((ctx.u if ctx.u_bed is None else ctx.u_bed) * (ctx.t_s / 3600.0)[:, None])
     # each axis deflects with its own acceleration (its structure's compliance, a mode
     # of tens of Hz quasi-static below it): microns at each start and stop, which left
     # 17-20 ms and 100-120 ppm in the timing.  Not generic: on a trace without it the
@@ -1176,7 +1194,8 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
     for f, (eff, nl, labels), sl in zip(findings, chosen, slices):
         contrib = blocks[slices.index(sl)] @ beta[sl]
         contribs[f.effect] = contrib
-        f.parameters = eff.parameters(beta[sl], labels, nl, ctx)
+        f.parameters, f.unseen = _seen_parameters(eff, blocks[slices.index(sl)], beta[sl],
+                                                  labels, nl, ctx)
         f.contribution_rms_um = rms(contrib)
         f.where = _where(ctx, series_idx, tau[allsel], contrib)
         # mimics: which other effects reproduce this finding's own signal
@@ -1276,6 +1295,7 @@ def _merge_aliased(findings: list, contribs: dict, ctx: Context, idx: np.ndarray
         keep.where = _where(ctx, idx, tau, joint)
         keep.parameters = {**keep.parameters,
                            **{f"{drop.effect}.{k}": v for k, v in drop.parameters.items()}}
+        keep.unseen = keep.unseen + [f"{drop.effect}.{k}" for k in drop.unseen]
         keep.heldout_rms_after_um = min(keep.heldout_rms_after_um, drop.heldout_rms_after_um)
         keep.rms_after_um = min(keep.rms_after_um, drop.rms_after_um)
         keep.ambiguous_with, keep.separate_by = [drop.effect], how

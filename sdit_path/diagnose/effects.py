@@ -238,7 +238,9 @@ class ThermalDrift(Effect):
 
     def columns(self, ctx, s, nl):
         th = s.tau_s / 3600.0
-        u = ctx.u[s.idx]
+        # the spindle drifts in the machine's frame (a Z warm-up stays along Z while a
+        # rotary table turns the bar); on a machine without a rotary table the same as u
+        u = (ctx.u if ctx.u_bed is None else ctx.u_bed)[s.idx]
         cols = np.column_stack([th, th * th, u[:, 0] * th, u[:, 1] * th, u[:, 2] * th])
         return cols, ("radial_um_per_h", "radial_um_per_h2", "x_um_per_h", "y_um_per_h",
                       "z_um_per_h")

@@ -40,6 +40,7 @@ def to_json(d: Diagnosis) -> dict:
         "gap": d.gap,
         "findings": [{
             "rank": k + 1, "effect": f.effect, "title": f.title, "parameters": f.parameters,
+            "not_seen_by_the_bar": f.unseen,
             "where": {"segments": f.where.get("segments", []),
                       "time_windows_s": f.where.get("time_windows_s", []),
                       "phase_rms_um": f.where.get("phase_rms_um", {}),
@@ -99,6 +100,9 @@ def summary_text(d: Diagnosis) -> str:
                         for a, b in f.parameters.items())
         name = " or ".join([f.effect, *f.ambiguous_with])
         lines.append(f"{k}. {name} ({f.confidence} confidence): {par}")
+        if f.unseen:
+            lines.append(f"   not seen by the bar in this program (not estimated): "
+                         f"{', '.join(f.unseen)}")
         lines.append(f"   RMS {f.rms_before_um:.3f} -> {f.rms_after_um:.3f} um fitted, "
                      f"held-out {f.heldout_rms_before_um:.3f} -> {f.heldout_rms_after_um:.3f} um")
         mimics = [m for m in f.mimics if m["effect"] not in f.ambiguous_with]

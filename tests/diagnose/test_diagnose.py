@@ -190,6 +190,27 @@ def test_five_axis_rotary_lag_mismatch(tmp_path):
     plan = load_plan(tmp_path / "p5")
     ctx = build_context(plan, "SDIT5_B")
     assert ctx.axis_names.index("Y") not in ctx.observable
+    # a spindle's drift stays in the machine's frame while the table turns the bar: the
+    # drift's columns read it through the bar's direction in that frame (1 um of the
+    # tool ball along the machine's Z, through the kinematics, against the column)
+    import copy
+
+    from sdit_path.diagnose.effects import Samples, ThermalDrift
+    from sdit_path.machine.kinematics import Kinematics
+
+    kin = Kinematics(plan.config.machine)
+    moved = copy.copy(kin)
+    moved.tip_mm = np.asarray(kin.tip_mm, float) + [0.0, 0.0, 1e-3]
+    k = np.arange(0, ctx.n, 997)
+    pivot = np.asarray(plan.config.ballbar.pivot_mm, float)
+    dl = (np.linalg.norm(moved.forward(ctx.q[k]) - pivot, axis=1)
+          - np.linalg.norm(kin.forward(ctx.q[k]) - pivot, axis=1)) * 1e3
+    assert np.ptp(ctx.q[:, ctx.axis_names.index("B")]) > 0.3  # the table tilts
+    cols, labels = ThermalDrift().columns(ctx, Samples(k, np.full(len(k), 3600.0)), {})
+    # (to first order: 1 um across a 100 mm bar changes its length by 5e-6 um more)
+    np.testing.assert_allclose(cols[:, labels.index("z_um_per_h")], dl, atol=2e-5)
+    assert np.ptp(dl) > 0.1 and np.abs(ctx.u[k, 2] - dl).max() > 0.01  # not the table's z
+    assert np.abs(cols[:, labels.index("y_um_per_h")]).max() < 1e-9  # Y: the bar never sees it
     model = load_error_set("five_axis_location")
     hidden = [Hidden("servo_mismatch", {"axis": "C", "extra_lag_ms": 1.0}),
               Hidden("setup_offset", {"dx_um": 6.0, "dy_um": 30.0, "dz_um": 15.0})]
@@ -398,3 +419,22 @@ def test_every_axis_reversals_are_both_fitted_and_held_out(setup):
                 checked += 1
                 assert 0 < held[us].sum() < len(us), (ctx.axis_names[j], held[us])
         assert checked >= 2
+
+
+def test_a_parameter_the_bar_cannot_see_is_not_reported():
+    """A column the bar never sees stays at zero in the fit; that zero is no estimate:
+    the parameter is left out of the finding and named as not seen."""
+    from sdit_path.diagnose.diagnose import _seen_parameters
+    from sdit_path.diagnose.effects import ReversalSpike
+
+    rng = np.random.default_rng(3)
+    C = rng.normal(size=(200, 3))
+    C[:, 1] = 0.0
+    labels = ("height_X_um", "height_Y_um", "height_Z_um")
+    par, unseen = _seen_parameters(ReversalSpike(), C, np.array([2.0, 0.0, -1.0]), labels,
+                                   {"tau_ms": 20.0}, None)
+    assert unseen == ["height_Y_um"]
+    assert par == {"tau_ms": 20.0, "height_X_um": 2.0, "height_Z_um": -1.0}
+    par, unseen = _seen_parameters(ReversalSpike(), rng.normal(size=(200, 3)),
+                                   np.array([2.0, 0.5, -1.0]), labels, {"tau_ms": 20.0}, None)
+    assert unseen == [] and par["height_Y_um"] == 0.5
