@@ -538,6 +538,12 @@ class ReversalSpike(Effect):
             # decays over 10-100 ms (the brief), so this is something else's edge (a
             # stick-slip's slip read as a companion pulse beside it)
             return f"tau_ms = {tau:.4g} at the short end of its search ({self.grid_ms[0]:g})"
+        if why is None and isinstance(tau, float) and tau >= self.grid_ms[-1] * (1 - 1e-9):
+            # or longer than its longest, as a lag at the end of its grid: a slow ramp
+            # that is not friction's pulse (beside a play taken up over the slow
+            # reversals of a 5-axis program: decay 100 ms and rise 10 ms, both at their
+            # grids' ends)
+            return f"tau_ms = {tau:.4g} at the long end of its search ({self.grid_ms[-1]:g})"
         return why
 
     def columns(self, ctx, s, nl):

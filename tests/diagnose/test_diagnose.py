@@ -320,6 +320,7 @@ def test_a_lag_at_the_end_of_its_search_is_not_taken_for_the_effect():
     short = {"tau_ms": float(spike.grid_ms[0]), "rise_ms": 1.0, "height_X_um": 1.1,
              "onset_mm_s": float(spike.onsets_mm_s[-1])}
     assert "short end" in (spike.implausible(short) or "")
+    assert "long end" in (spike.implausible({**short, "tau_ms": float(spike.grid_ms[-1])}) or "")
     assert spike.implausible({**short, "tau_ms": 20.0}) is None
 
 
