@@ -58,7 +58,7 @@ class Context:
     run_end_mm: np.ndarray
     observable: tuple[int, ...] = ()
     #: unit bar direction in the machine's (bed) frame, ``(n, 3)``: a spindle's drift is
-    #: seen through it (``u`` turns with a rotary table); None: the same as ``u``
+    #: seen through it (``u`` turns with a rotary table; without one it is ``u`` itself)
     u_bed: np.ndarray | None = None
     _slow: dict = field(default_factory=dict)
 
@@ -195,7 +195,7 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     first = np.maximum.accumulate(np.where(new_run, np.arange(len(t)), 0))
     last_idx = np.r_[np.flatnonzero(new_run)[1:] - 1, len(t) - 1]
     run_no = np.cumsum(new_run) - 1
-    u_bed = None
+    u_bed = u
     if any(kin.axes[i].is_rotary for i in kin.workpiece):
         rot, _ = kin.table_transform(q)  # p_bed = rot p_table + trans
         u_bed = np.einsum("nij,nj->ni", rot, u)

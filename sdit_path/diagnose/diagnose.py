@@ -208,11 +208,16 @@ def _rho(r: np.ndarray, tau: np.ndarray) -> float:
     return float(np.clip((a @ b) / den, 0.0, 0.9999)) if den > 0 else 0.0
 
 
+def _blind(A: np.ndarray) -> np.ndarray:
+    """Columns the bar cannot see (below 1e-8 um per unit everywhere)."""
+    return np.sqrt((A * A).sum(0)) < 1e-8 * math.sqrt(max(len(A), 1))
+
+
 def _solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Least squares with column scaling."""
     scale = np.sqrt((A * A).sum(0))
-    # a column the bar cannot see (below 1e-8 um per unit everywhere) stays at zero
-    blind = scale < 1e-8 * math.sqrt(max(len(A), 1))
+    # a column the bar cannot see stays at zero
+    blind = _blind(A)
     scale[blind] = np.inf
     # truncated at 1e-5 of the largest singular value: a combination of parameters
     # the data cannot tell apart gets the minimum-norm value, not 1e8
@@ -226,7 +231,7 @@ def _seen_parameters(eff: Effect, C: np.ndarray, coef: np.ndarray, labels, nl: d
     :func:`_solve`'s threshold everywhere: a spindle's Y drift on a B-C table set-up that
     keeps the bar in the XZ plane), which least squares leaves at 0 and which are not
     estimates; and the names of those left out."""
-    blind = np.sqrt((C * C).sum(0)) < 1e-8 * math.sqrt(max(len(C), 1))
+    blind = _blind(C)
     if not blind.any():
         return eff.parameters(coef, labels, nl, ctx), []
     coef = np.where(blind, np.nan, coef)
@@ -725,7 +730,7 @@ def dynamic_columns(ctx: Context) -> np.ndarray:
     friction spikes)."""
     allg = Samples(np.arange(ctx.n), ctx.t_s)
     cols = [ServoMismatch().columns(ctx, allg, {})[0]]
-    cols.append((ctx.u if ctx.u_bed is None else ctx.u_bed) * (ctx.t_s / 3600.0)[:, None])
+    cols.append(ctx.u_bed * (ctx.t_s / 3600.0)[:, None])
     # each axis deflects with its own acceleration (its structure's compliance, a mode
     # of tens of Hz quasi-static below it): microns at each start and stop, which left
     # 17-20 ms and 100-120 ppm in the timing.  Not generic: on a trace without it the

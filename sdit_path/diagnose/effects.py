@@ -240,7 +240,7 @@ class ThermalDrift(Effect):
         th = s.tau_s / 3600.0
         # the spindle drifts in the machine's frame (a Z warm-up stays along Z while a
         # rotary table turns the bar); on a machine without a rotary table the same as u
-        u = (ctx.u if ctx.u_bed is None else ctx.u_bed)[s.idx]
+        u = ctx.u_bed[s.idx]
         cols = np.column_stack([th, th * th, u[:, 0] * th, u[:, 1] * th, u[:, 2] * th])
         return cols, ("radial_um_per_h", "radial_um_per_h2", "x_um_per_h", "y_um_per_h",
                       "z_um_per_h")
@@ -533,17 +533,16 @@ class ReversalSpike(Effect):
     def implausible(self, params):
         why = super().implausible(params)
         tau = params.get("tau_ms")
-        if why is None and isinstance(tau, float) and tau <= self.grid_ms[0] * (1 + 1e-9):
-            # the data want a pulse shorter than the search's shortest decay: friction
-            # decays over 10-100 ms (the brief), so this is something else's edge (a
-            # stick-slip's slip read as a companion pulse beside it)
-            return f"tau_ms = {tau:.4g} at the short end of its search ({self.grid_ms[0]:g})"
-        if why is None and isinstance(tau, float) and tau >= self.grid_ms[-1] * (1 - 1e-9):
-            # or longer than its longest, as a lag at the end of its grid: a slow ramp
-            # that is not friction's pulse (beside a play taken up over the slow
-            # reversals of a 5-axis program: decay 100 ms and rise 10 ms, both at their
-            # grids' ends)
-            return f"tau_ms = {tau:.4g} at the long end of its search ({self.grid_ms[-1]:g})"
+        if why is None and isinstance(tau, float):
+            # the data want a decay beyond the search, and friction decays over 10-100 ms
+            # (the brief): shorter, it was a stick-slip's edge read as a companion pulse;
+            # longer (as a lag at the end of its grid), a slow ramp beside a play taken
+            # up over a 5-axis program's slow reversals
+            lo, hi = self.grid_ms[0], self.grid_ms[-1]
+            for end, at in (("short", tau <= lo * (1 + 1e-9)), ("long", tau >= hi * (1 - 1e-9))):
+                if at:
+                    return (f"tau_ms = {tau:.4g} at the {end} end of its search "
+                            f"({lo if end == 'short' else hi:g})")
         return why
 
     def columns(self, ctx, s, nl):
