@@ -17,7 +17,7 @@ from sdit_path.diagnose.diagnose import diagnose
 from sdit_path.diagnose.report import to_json
 from sdit_path.errormodel.errorset import load_error_set
 from sdit_path.planfiles import load_plan
-from sdit_path.sim.perturb import Hidden, Recording, draw_effect, measured_csv, perturb
+from sdit_path.sim.perturb import Hidden, Recording, measured_csv, perturb
 from sdit_path.sim.traceio import read_trace
 
 PROGRAM = "SDIT_C"
@@ -439,3 +439,39 @@ def test_a_parameter_the_bar_cannot_see_is_not_reported():
     par, unseen = _seen_parameters(ReversalSpike(), rng.normal(size=(200, 3)),
                                    np.array([2.0, 0.5, -1.0]), labels, {"tau_ms": 20.0}, None)
     assert unseen == [] and par["height_Y_um"] == 0.5
+
+
+def test_a_sticking_axis_crawls_are_left_out_of_the_timing_check(setup):
+    """A stick-slip's saw-tooth within a crawl is set by the friction, not the program:
+    the timing is read again without the crawls of the axis that sticks (and the
+    settling after them), not without those of an axis that does not."""
+    from sdit_path.diagnose.align import Alignment
+    from sdit_path.diagnose.diagnose import (UNSURE_MARGIN_S, Finding, _timing_reading)
+    from sdit_path.diagnose.effects import STICK_SLIP_SPEED_MM_PER_S, Samples, StickSlip
+
+    _, ctx, _ = setup
+    eff = StickSlip()
+    nl = {"stick_um": 3.0}
+    C, labels = eff.columns(ctx, Samples(np.arange(ctx.n), ctx.t_s), nl)
+    coef = np.array([1.0 if lab.startswith(("mean_lag_X", "amplitude_X")) else 0.0
+                     for lab in labels])
+    expected = 50.0 * np.sin(ctx.t_s / 7.0)
+    al = Alignment(5.0, 50.0, 1e-4, 2.0, 0.0)
+    t_m = al.measured_time(ctx.t_s)
+    y = expected + C @ coef + np.random.default_rng(1).normal(0, 0.05, ctx.n)
+    f = Finding("stick_slip", "", {}, nl, labels, 0, 0, 0, 0, 0)
+    assert _timing_reading(ctx, [eff], expected, t_m, y, [], al) is y
+    out = ~np.isfinite(_timing_reading(ctx, [eff], expected, t_m, y, [f], al))
+    by_axis = {ctx.axis_names[j]: ctx.slow_state(j, STICK_SLIP_SPEED_MM_PER_S)[0]
+               for j in range(3)}
+    x = by_axis["X"]
+    assert x.any() and out[x].all()
+    # nothing further than the settling (and the offset's uncertainty) from X's crawls
+    t_x = ctx.t_s[x]
+    k = np.clip(np.searchsorted(t_x, ctx.t_s), 1, len(t_x) - 1)
+    gap = np.minimum(np.abs(ctx.t_s - t_x[k - 1]), np.abs(ctx.t_s - t_x[k]))
+    far = gap > UNSURE_MARGIN_S + 0.01
+    assert not (out & far).any()
+    # Y's crawls away from X's stay in
+    y_only = by_axis["Y"] & far
+    assert y_only.any() and not out[y_only].any()
