@@ -38,6 +38,24 @@ def default_text() -> str:
     return sample_path("vmc_3axis.toml").read_text()
 
 
+@pytest.fixture(scope="session")
+def plan_f1500(tmp_path_factory) -> Path:
+    """The default sample planned at F1500 by the command line, once per session: the
+    diagnosis tests and the self-check of ``perturb`` read it (and write nothing into
+    it)."""
+    import subprocess
+    import sys
+
+    d = tmp_path_factory.mktemp("f1500")
+    cfg = d / "f1500.toml"
+    cfg.write_text(sample_path("vmc_3axis.toml").read_text().replace(
+        "feed_mm_per_min = 600.0", "feed_mm_per_min = 1500.0"))
+    r = subprocess.run([sys.executable, "-m", "sdit_path", "plan", str(cfg), "--out",
+                        str(d / "plan"), "-q"], capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    return d / "plan"
+
+
 def edit(text: str, key: str, value: str, section: str | None = None) -> str:
     """Replace ``key = ...`` (in ``[section]`` when given) with ``key = value``."""
     if section is None:

@@ -57,9 +57,11 @@ def test_diagnosis_benchmark_runs_and_prints_its_ratio():
     assert "ratio trace duration / diagnosis time" in r.stdout
 
 
-def test_perturb_selfcheck_runs_and_prints_its_scores():
+def test_perturb_selfcheck_runs_and_prints_its_scores(plan_f1500):
+    """On the plan the diagnosis tests read (the self-check's own: the sample at F1500)."""
     r = subprocess.run([sys.executable, str(BENCH / "perturb_selfcheck.py"), "--cases", "4",
-                        "--jobs", "1"], capture_output=True, text=True, timeout=900)
+                        "--jobs", "1", "--plan", str(plan_f1500)], capture_output=True,
+                       text=True, timeout=900)
     assert r.returncode == 0, r.stderr
     for key in ("top-1 effect", "false findings, clean traces", "honest outside the library",
                 "held-out shrink"):

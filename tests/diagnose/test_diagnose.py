@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sdit_path.config import sample_path
 from sdit_path.diagnose.context import build_context
 from sdit_path.diagnose.diagnose import diagnose
 from sdit_path.diagnose.report import to_json
@@ -29,14 +28,8 @@ def _cli(*args):
 
 
 @pytest.fixture(scope="module")
-def plan_dir(tmp_path_factory):
-    d = tmp_path_factory.mktemp("diag")
-    cfg = d / "f1500.toml"
-    cfg.write_text(sample_path("vmc_3axis.toml").read_text().replace(
-        "feed_mm_per_min = 600.0", "feed_mm_per_min = 1500.0"))
-    r = _cli("plan", str(cfg), "--out", str(d / "plan"), "-q")
-    assert r.returncode == 0, r.stderr
-    return d / "plan"
+def plan_dir(plan_f1500):
+    return plan_f1500
 
 
 @pytest.fixture(scope="module")
