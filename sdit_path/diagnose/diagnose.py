@@ -419,9 +419,9 @@ def _timing_reading(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: 
     allg = Samples(np.arange(ctx.n), ctx.t_s)
     blocks = [expected[:, None], np.ones((ctx.n, 1))]
     blocks += [by[f.effect].columns(ctx, allg, f.nonlinear)[0] for f in findings]
-    inside = ok & (tau >= ctx.t_s[0]) & (tau <= ctx.t_s[-1])
-    A = _at(ctx.t_s, np.column_stack(blocks), tau[inside])
-    beta = _solve(A, y[inside])
+    inside = np.flatnonzero(ok & (tau >= ctx.t_s[0]) & (tau <= ctx.t_s[-1]))
+    inside = inside[::max(1, -(-len(inside) // _REFINE_SAMPLES))]  # sizes, not timing
+    beta = _solve(_at(ctx.t_s, np.column_stack(blocks), tau[inside]), y[inside])
     mask = np.zeros(ctx.n, bool)
     at = 2
     for f, C in zip(findings, blocks[2:]):
