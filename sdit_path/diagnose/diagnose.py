@@ -464,16 +464,28 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
     al = _widened(al, widen)
     y_sure = _timing_reading(ctx, lib, expected, t_m, y, findings, first_al)
     if y_sure is not y:
-        # the timing read again without what a finding's model leaves open: the two
-        # readings' difference is part of the timing's uncertainty (the estimate from
-        # every sample is kept: without them a slow program lost most of its timing -
-        # SDIT_C's stick-slip case 6 went from 1.2 ms off to 10.8)
+        # the timing read again without what a finding's model leaves open.  Were the
+        # model right there, the two readings would differ by the information the
+        # samples left out carry (the difference's variance is that of the reading
+        # without them less that of the reading with them); where they differ by more
+        # than twice that, the excess is part of the timing's uncertainty.  The estimate
+        # from every sample is kept (without them a slow program lost most of its
+        # timing: SDIT_C's stick-slip 6 went from 1.2 ms off to 10.8, within what the
+        # information lost explains)
         sure, _ = _realign(ctx, expected, t_m, y_sure,
                            np.column_stack([*pose, X[:, 2:], D]), first_al)
-        log.debug("timing without the unsure samples: offset %.4f vs %.4f s, clock %.1f vs "
-                  "%.1f ppm", sure.offset_s, al.offset_s, sure.clock_ppm, al.clock_ppm)
-        wide = _widened(al, (abs(sure.offset_s - al.offset_s),
-                             abs(sure.clock_ppm - al.clock_ppm)))
+        log.debug("timing without the unsure samples: offset %.4f +- %.2f ms vs %.4f s, "
+                  "clock %.1f +- %.1f vs %.1f ppm", sure.offset_s, sure.offset_std_s * 1e3,
+                  al.offset_s, sure.clock_ppm, sure.clock_std_ppm, al.clock_ppm)
+
+        def excess(d: float, s_sure: float, s_all: float) -> float:
+            spread = max(s_sure * s_sure - s_all * s_all, 0.0)
+            return math.sqrt(d * d - spread) if d * d > 4.0 * spread else 0.0
+
+        wide = _widened(al, (excess(sure.offset_s - al.offset_s, sure.offset_std_s,
+                                    al.offset_std_s),
+                             excess(sure.clock_ppm - al.clock_ppm, sure.clock_std_ppm,
+                                    al.clock_std_ppm)))
         # never wider than the documented clock range allows (the spread of a rate
         # anywhere in twice the range, as for a rate at its edge)
         cap = max(al.clock_std_ppm, 2 * 200.0 / math.sqrt(3.0))
