@@ -45,6 +45,10 @@ class Alignment:
         return self.offset_s + np.asarray(tau) * (1.0 + self.clock_ppm * 1e-6)
 
 
+#: the documented contract: a recorder's clock within this many ppm of the control's
+CLOCK_LIMIT_PPM = 200.0
+
+
 def generic_columns(ctx: Context, expected_um: np.ndarray, extra: np.ndarray | None = None
                     ) -> np.ndarray:
     """``(n, m)`` on the trajectory grid: expected reading (if it varies), constant,
@@ -122,7 +126,7 @@ DIRECT_CORRELATION = 200
 
 
 def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
-           ppm_limit: float = 200.0, block_s: float = 0.1, drift_s: float = 0.01,
+           ppm_limit: float = CLOCK_LIMIT_PPM, block_s: float = 0.1, drift_s: float = 0.01,
            candidates: int = 1, apart_s: float = 0.25
            ) -> list[tuple[float, float]]:
     """The best (offset_s, clock_ppm) on a grid, best first: offsets at ``block_s``,
@@ -272,7 +276,7 @@ def _timing_std(JJ: np.ndarray, r: np.ndarray) -> tuple[float, float]:
 
 
 def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s: float,
-           ppm: float, ppm_limit: float = 200.0, iterations: int = 8,
+           ppm: float, ppm_limit: float = CLOCK_LIMIT_PPM, iterations: int = 8,
            max_samples: int = 120_000, max_step_s: float = 0.05, check: bool = True,
            tolerance: float = 0.01) -> Alignment:
     """Gauss-Newton on (offset, rate) with the linear model ``X`` at the full rate;
@@ -421,7 +425,7 @@ def _consistency(X: np.ndarray, t: np.ndarray, tm: np.ndarray, yy: np.ndarray,
     return min(off, 1.0), min(clk, 1000.0)
 
 
-def check_span(span_s: float, program_s: float, ppm_limit: float = 200.0) -> None:
+def check_span(span_s: float, program_s: float, ppm_limit: float = CLOCK_LIMIT_PPM) -> None:
     """A recording must last at least its program and not absurdly longer (a recording
     of another program, or times written in milliseconds)."""
     if span_s < program_s * (1 - ppm_limit * 1e-6):
@@ -438,7 +442,7 @@ COARSE_ALL_COLUMNS_S = 1200.0
 
 
 def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
-          ppm_limit: float = 200.0, extra: np.ndarray | None = None, candidates: int = 5,
+          ppm_limit: float = CLOCK_LIMIT_PPM, extra: np.ndarray | None = None, candidates: int = 5,
           seeds: tuple[tuple[float, float], ...] = (), model: np.ndarray | None = None,
           search: bool = True) -> Alignment:
     """The global search (``candidates`` distinct minima, plus ``seeds``: alignments

@@ -25,8 +25,8 @@ from ..errormodel.errorset import ErrorSet
 from ..machine.kinematics import Kinematics
 from ..planfiles import PlanFiles
 from ..sim.simulate import Trace, error_values
-from .align import Alignment, SetupStep, _at, _lsq, align, axis_acceleration_readings, \
-    generic_columns, refine, setup_step
+from .align import CLOCK_LIMIT_PPM, Alignment, SetupStep, _at, _lsq, align, \
+    axis_acceleration_readings, generic_columns, refine, setup_step
 from .context import Context, build_context, strided
 from .effects import GEOMETRIC, PRIOR_ORDER, Backlash, Effect, GeometryBeyond, LateralPlay, \
     ReversalSpike, Samples, ScaleMismatch, ServoMismatch, Squareness, fitted_beside, library, \
@@ -410,8 +410,8 @@ def _timing_reading(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: 
     them and by three of ``al``'s offset uncertainties (at most 50 ms); ``y`` itself when
     there are none."""
     by = {e.name: e for e in lib}
-    unsure = [f for f in findings
-              if type(by[f.effect]).unsure_in_time is not Effect.unsure_in_time]
+    unsure = {f.effect for f in findings
+              if type(by[f.effect]).unsure_in_time is not Effect.unsure_in_time}
     if not unsure:
         return y
     ok = np.isfinite(y)
@@ -425,7 +425,7 @@ def _timing_reading(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: 
     mask = np.zeros(ctx.n, bool)
     at = 2
     for f, C in zip(findings, blocks[2:]):
-        if f in unsure:
+        if f.effect in unsure:
             m = by[f.effect].unsure_in_time(
                 ctx, {lab: float(c) for lab, c in zip(f.labels, beta[at:at + C.shape[1]])})
             if m is not None:
@@ -441,7 +441,7 @@ def _timing_reading(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: 
     if (out & ok).sum() > UNSURE_SHARE * ok.sum():
         return y
     log.debug("timing read without %.1f %% of the samples (%s)", 100 * (out & ok).mean(),
-              ", ".join(sorted({f.effect for f in unsure})))
+              ", ".join(sorted(unsure)))
     return np.where(out, np.nan, y)
 
 
@@ -488,7 +488,7 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
                                     al.clock_std_ppm)))
         # never wider than the documented clock range allows (the spread of a rate
         # anywhere in twice the range, as for a rate at its edge)
-        cap = max(al.clock_std_ppm, 2 * 200.0 / math.sqrt(3.0))
+        cap = max(al.clock_std_ppm, 2 * CLOCK_LIMIT_PPM / math.sqrt(3.0))
         al = dataclasses.replace(wide, clock_std_ppm=min(wide.clock_std_ppm, cap))
     names = {f.effect for f in findings}
     if not partners:

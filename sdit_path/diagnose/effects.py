@@ -186,8 +186,10 @@ class Effect:
     limits: dict = {}
 
     def unsure_in_time(self, ctx: Context, params: dict) -> np.ndarray | None:
-        """Grid samples where the effect's reading, as found, is not to be read for the
-        timing (its fine structure is not locked to the program), or None."""
+        """Grid samples where the effect's model, as found (``params``: its sizes by
+        label), leaves the reading open - a fine structure not locked to the program -
+        or None.  The timing is read again without them and the two readings compared
+        (``diagnose._settle``)."""
         return None
 
     def implausible(self, params: dict) -> str | None:
