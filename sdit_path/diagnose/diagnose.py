@@ -403,12 +403,12 @@ UNSURE_MARGIN_S = 0.02
 UNSURE_SHARE = 0.5
 
 
-def _timing_reading(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
+def _timing_reading(ctx: Context, lib: list[Effect], X: np.ndarray, t_m: np.ndarray,
                     y: np.ndarray, findings: list, al: Alignment) -> np.ndarray:
-    """``y`` without the samples (as not finite) where a finding, fitted at ``al``, says
-    its model leaves the reading open (``unsure_in_time``), widened by the settling after
-    them and by three of ``al``'s offset uncertainties (at most 50 ms); ``y`` itself when
-    there are none."""
+    """``y`` without the samples (as not finite) where a finding, fitted at ``al`` with
+    the others (``X``: their :func:`_model_columns`), says its model leaves the reading
+    open (``unsure_in_time``), widened by the settling after them and by three of
+    ``al``'s offset uncertainties (at most 50 ms); ``y`` itself when there are none."""
     by = {e.name: e for e in lib}
     unsure = {f.effect for f in findings
               if type(by[f.effect]).unsure_in_time is not Effect.unsure_in_time}
@@ -416,21 +416,19 @@ def _timing_reading(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: 
         return y
     ok = np.isfinite(y)
     tau = al.program_time(t_m)
-    allg = Samples(np.arange(ctx.n), ctx.t_s)
-    blocks = [expected[:, None], np.ones((ctx.n, 1))]
-    blocks += [by[f.effect].columns(ctx, allg, f.nonlinear)[0] for f in findings]
     inside = np.flatnonzero(ok & (tau >= ctx.t_s[0]) & (tau <= ctx.t_s[-1]))
     inside = inside[::max(1, -(-len(inside) // _REFINE_SAMPLES))]  # sizes, not timing
-    beta = _solve(_at(ctx.t_s, np.column_stack(blocks), tau[inside]), y[inside])
+    beta = _solve(_at(ctx.t_s, X, tau[inside]), y[inside])
     mask = np.zeros(ctx.n, bool)
-    at = 2
-    for f, C in zip(findings, blocks[2:]):
+    at = 2  # after the expected reading and the constant
+    for f in filter(_timed, findings):
+        width = len(f.labels)
         if f.effect in unsure:
             m = by[f.effect].unsure_in_time(
-                ctx, {lab: float(c) for lab, c in zip(f.labels, beta[at:at + C.shape[1]])})
+                ctx, {lab: float(c) for lab, c in zip(f.labels, beta[at:at + width])})
             if m is not None:
                 mask |= m
-        at += C.shape[1]
+        at += width
     if not mask.any():
         return y
     widen = UNSURE_MARGIN_S + 3.0 * min(al.offset_std_s, 0.05 / 3.0)
@@ -462,7 +460,7 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
         D = _shape_columns(ctx, lib, findings)
         al, jump = _realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:], D]), first_al)
     al = _widened(al, widen)
-    y_sure = _timing_reading(ctx, lib, expected, t_m, y, findings, first_al)
+    y_sure = _timing_reading(ctx, lib, X, t_m, y, findings, first_al)
     if y_sure is not y:
         # the timing read again without what a finding's model leaves open.  Were the
         # model right there, the two readings would differ by the information the
@@ -835,10 +833,8 @@ def _shape_columns(ctx, lib, findings) -> np.ndarray:
     allg = Samples(np.arange(ctx.n), ctx.t_s)
     by = {e.name: e for e in lib}
     out = []
-    for f in findings:
+    for f in filter(_timed, findings):
         eff = by[f.effect]
-        if f.effect == "vibration" and f.nonlinear.get("steady"):
-            continue
         skip = set(getattr(eff, "discrete", ())) | (
             {eff.timing_parameter[0]} if eff.timing_parameter else set())
         try:
@@ -863,16 +859,20 @@ def _shape_columns(ctx, lib, findings) -> np.ndarray:
     return np.column_stack(out) if out else np.zeros((ctx.n, 0))
 
 
+def _timed(f) -> bool:
+    """Is the finding's reading locked to the program, to be fitted beside the timing?  A
+    steady ripple is locked to time instead: it would pull the clock rate."""
+    return not (f.effect == "vibration" and f.nonlinear.get("steady"))
+
+
 def _model_columns(ctx, lib, expected, findings) -> np.ndarray:
+    """The expected reading, a constant and the columns of every finding that is
+    :func:`_timed`, in that order."""
     allg = Samples(np.arange(ctx.n), ctx.t_s)
-    cols = [expected[:, None], np.ones((ctx.n, 1))]
     by = {e.name: e for e in lib}
-    for f in findings:
-        if f.effect == "vibration" and f.nonlinear.get("steady"):
-            continue  # locked to time, not to the program: it would pull the clock rate
-        c, _ = by[f.effect].columns(ctx, allg, f.nonlinear)
-        cols.append(c)
-    return np.column_stack(cols)
+    return np.column_stack([expected[:, None], np.ones((ctx.n, 1))]
+                           + [by[f.effect].columns(ctx, allg, f.nonlinear)[0]
+                              for f in filter(_timed, findings)])
 
 
 def _candidate(eff: Effect, ctx: Context, S: Samples, r: np.ndarray, pinned: dict | None = None):

@@ -453,8 +453,9 @@ def test_a_sticking_axis_crawls_are_left_out_of_the_timing_check(setup):
     t_m = al.measured_time(ctx.t_s)
     y = expected + C @ coef + np.random.default_rng(1).normal(0, 0.05, ctx.n)
     f = Finding("stick_slip", "", {}, nl, labels, 0, 0, 0, 0, 0)
-    assert _timing_reading(ctx, [eff], expected, t_m, y, [], al) is y
-    out = ~np.isfinite(_timing_reading(ctx, [eff], expected, t_m, y, [f], al))
+    X = np.column_stack([expected, np.ones(ctx.n), C])
+    assert _timing_reading(ctx, [eff], X[:, :2], t_m, y, [], al) is y
+    out = ~np.isfinite(_timing_reading(ctx, [eff], X, t_m, y, [f], al))
     by_axis = {ctx.axis_names[j]: ctx.slow_state(j, STICK_SLIP_SPEED_MM_PER_S)[0]
                for j in range(3)}
     x = by_axis["X"]
