@@ -546,10 +546,10 @@ class ReversalSpike(Effect):
             # longer (as a lag at the end of its grid), a slow ramp beside a play taken
             # up over a 5-axis program's slow reversals
             lo, hi = self.grid_ms[0], self.grid_ms[-1]
-            for end, at in (("short", tau <= lo * (1 + 1e-9)), ("long", tau >= hi * (1 - 1e-9))):
-                if at:
-                    return (f"tau_ms = {tau:.4g} at the {end} end of its search "
-                            f"({lo if end == 'short' else hi:g})")
+            if tau <= lo * (1 + 1e-9):
+                return f"tau_ms = {tau:.4g} at the short end of its search ({lo:g})"
+            if tau >= hi * (1 - 1e-9):
+                return f"tau_ms = {tau:.4g} at the long end of its search ({hi:g})"
         return why
 
     def columns(self, ctx, s, nl):
