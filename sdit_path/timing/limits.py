@@ -72,14 +72,25 @@ class Budget:
 
     def at(self, v: float) -> tuple[float, float]:
         """Path acceleration and jerk limits usable at path speeds up to ``v``."""
+        # plain comparisons rather than min(): this runs millions of times per 5-axis
+        # layer, and each builtin call costs more than the arithmetic it guards
         v = min(max(v, 0.0), self.v_cap)
+        v3 = v ** 3
+        share = self.jerk_share
         a = math.inf
         for m1, m2, m3, a_lim, j_lim in self._rows:
-            a = min(a, (a_lim - m2 * v * v) / m1)
+            x = (a_lim - m2 * v * v) / m1
+            if x < a:
+                a = x
             if m2 * v > 1e-12:
-                a = min(a, self.jerk_share * (j_lim - m3 * v ** 3) / (3.0 * m2 * v))
-        j = min((j_lim - m3 * v ** 3 - 3.0 * m2 * v * a) / m1
-                for m1, m2, m3, _, j_lim in self._rows)
+                x = share * (j_lim - m3 * v3) / (3.0 * m2 * v)
+                if x < a:
+                    a = x
+        j = math.inf
+        for m1, m2, m3, _, j_lim in self._rows:
+            x = (j_lim - m3 * v3 - 3.0 * m2 * v * a) / m1
+            if x < j:
+                j = x
         return a, j
 
     def limits(self, v: float) -> PathLimits:

@@ -268,13 +268,23 @@ class _Ramps:
     def window(self, s: float) -> int:
         return min(max(bisect.bisect_right(self._edges, s) - 1, 0), len(self.windows) - 1)
 
-    def _limits(self, first: int, last: int, v: float) -> tuple[float, float]:
+    def _limits(self, first: int, last: int, v: float, seen: dict) -> tuple[float, float]:
+        """The acceleration and jerk every window first..last allows at speed ``v``
+        ((0, 0) if one cannot run that fast); ``seen`` keeps each window's answer at
+        each speed for the ramp being built, which asks again as a band's cover grows."""
         a = j = math.inf
         for w in range(first, last + 1):
-            if v > self.caps[w] * (1.0 + 1e-9):
+            got = seen.get((w, v))
+            if got is None:
+                got = (() if v > self.caps[w] * (1.0 + 1e-9) else self.windows[w][1].at(v))
+                seen[w, v] = got
+            if not got:
                 return 0.0, 0.0
-            aw, jw = self.windows[w][1].at(v)
-            a, j = min(a, aw), min(j, jw)
+            aw, jw = got
+            if aw < a:
+                a = aw
+            if jw < j:
+                j = jw
         return a, j
 
     def ramp(self, v_lo: float, v_hi: float, anchor: float, direction: int,
@@ -288,7 +298,8 @@ class _Ramps:
         u = [v_lo + (v_hi - v_lo) * i / n for i in range(n + 1)]
         w0 = self.window(anchor + direction * 1e-9)
         cover = [(w0, w0)] * n
-        lim = [self._limits(w0, w0, u[i + 1]) for i in range(n)]
+        seen: dict = {}
+        lim = [self._limits(w0, w0, u[i + 1], seen) for i in range(n)]
         for _ in range(len(self.windows) + 2):
             if any(a <= 0.0 or j <= 0.0 for a, j in lim):
                 return None
@@ -313,7 +324,7 @@ class _Ramps:
             if grown == cover:
                 return _Ramp(abs(pos - anchor), time, tuple(u), tuple(alpha),
                              tuple(a for a, _ in lim), tuple(j for _, j in lim))
-            lim = [lim[i] if grown[i] == cover[i] else self._limits(*grown[i], u[i + 1])
+            lim = [lim[i] if grown[i] == cover[i] else self._limits(*grown[i], u[i + 1], seen)
                    for i in range(n)]
             cover = grown
         return None
@@ -333,30 +344,41 @@ class _Ramps:
 def _boundary_speeds(ramps: _Ramps, reach: int) -> list[float]:
     """Backward and forward reachability passes over the window boundaries: the
     highest speed at each from which the run can still slow down in time and which it
-    can reach in time, with speed changes spanning up to ``reach`` windows."""
+    can reach in time, with speed changes spanning up to ``reach`` windows.
+
+    Each boundary takes the best over the spans that end (or start) there.  The longest
+    span is tried first, as it usually allows the most; a span that cannot even reach
+    the best so far is passed over after one ramp instead of a search (its own search
+    would end below that best, so the answer is the same)."""
     n, cum, caps = len(ramps.windows), ramps.cum, ramps.caps
     vb = [0.0] + [min(caps[k - 1], caps[k]) for k in range(1, n)] + [0.0]
+
+    def better(best: float, fits, lo: float, hi: float) -> float:
+        if hi <= best or (lo < best and not fits(best)):
+            return best
+        return max(best, _largest(fits, lo, hi, 20))
+
     for k in range(n - 1, -1, -1):  # backward: able to slow down in time
         best = 0.0
-        for m in range(k + 1, min(n, k + reach) + 1):
+        for m in range(min(n, k + reach), k, -1):
             cap, length = min(caps[k:m]), cum[m] - cum[k]
-            if cap < vb[m] * (1.0 - 1e-12) or min(vb[k], cap) <= best:
+            if cap < vb[m] * (1.0 - 1e-12):
                 continue
 
             def fits(v: float, m=m, length=length) -> bool:
                 return ramps.ramp(vb[m], v, cum[m], -1, length) is not None
-            best = max(best, _largest(fits, min(vb[m], cap, vb[k]), min(vb[k], cap), 20))
+            best = better(best, fits, min(vb[m], cap, vb[k]), min(vb[k], cap))
         vb[k] = min(vb[k], best)
     for m in range(1, n + 1):  # forward: able to speed up in time
         best = 0.0
         for k in range(max(0, m - reach), m):
             cap, length = min(caps[k:m]), cum[m] - cum[k]
-            if cap < vb[k] * (1.0 - 1e-12) or min(vb[m], cap) <= best:
+            if cap < vb[k] * (1.0 - 1e-12):
                 continue
 
             def fits(v: float, k=k, length=length) -> bool:
                 return ramps.ramp(vb[k], v, cum[k], +1, length) is not None
-            best = max(best, _largest(fits, min(vb[k], cap, vb[m]), min(vb[m], cap), 20))
+            best = better(best, fits, min(vb[k], cap, vb[m]), min(vb[m], cap))
         vb[m] = min(vb[m], best)
     return vb
 
