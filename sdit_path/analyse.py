@@ -25,7 +25,7 @@ from .diagnose.diagnose import Diagnosis, diagnose, dynamic_columns, noise_estim
 from .diagnose.diagnose import Options as DiagnosisOptions
 from .diagnose.effects import Samples, library
 from .diagnose.recording import AlignedRecording, align_recording, plausible_programs, poor_fit
-from .diagnose.report import pictures as diagnosis_pictures
+from .diagnose.report import parameters_text, pictures as diagnosis_pictures
 from .errormodel.errorset import ErrorSet
 from .errormodel.model import ModelOptions
 from .errors import ConfigError, RecordingError
@@ -430,8 +430,7 @@ def _diagnosis_text(d: dict) -> str:
     if not d["findings"]:
         lines.append("  findings: none beyond the set-up")
     for f in d["findings"]:
-        par = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
-                        for k, v in f["parameters"].items())
+        par = parameters_text(f["parameters"], f.get("parameter_std", {}))
         name = " or ".join([f["effect"], *f.get("ambiguous_with", [])])
         lines.append(f"  {f['rank']}. {name} ({f['confidence']} confidence): {par}")
         lines.append(f"     held-out RMS {f['heldout_rms_before_um']:.3f} -> "

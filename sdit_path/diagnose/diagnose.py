@@ -81,6 +81,10 @@ class Finding:
     separate_by: str = ""
     #: parameters the bar cannot see in this program (not estimated, not reported)
     unseen: list = field(default_factory=list)
+    #: parameter -> standard uncertainty (those found by a search on a grid have none)
+    uncertainty: dict = field(default_factory=dict)
+    #: parameters the recording does not determine apart from the others' (not reported)
+    undetermined: list = field(default_factory=list)
 
 
 @dataclass
@@ -225,20 +229,168 @@ def _solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:
     return coef / scale
 
 
+#: standard uncertainty of the instrument's gain: a ballbar's accuracy is about
+#: +-(0.5 um + 0.3 %) of its reading (domain brief, typical of commercial ballbars); the
+#: 0.5 um is a length, read as the bar length, the 0.3 % scales every coefficient at
+#: once (a uniform spread: 0.3 % / sqrt(3))
+GAIN_STD = 0.003 / math.sqrt(3.0)
+
+
+def _residual_variance(resid: np.ndarray, tau: np.ndarray) -> float:
+    """The variance one sample's residual stands for: its mean square times
+    (1 + rho) / (1 - rho) for its correlation from sample to sample."""
+    if not len(resid):
+        return 0.0
+    rho = _rho(resid, tau)
+    return float(np.mean(resid * resid)) * (1.0 + rho) / (1.0 - rho)
+
+
+def _searched_std(eff: Effect, nl: dict, keys: list, ctx: Context, S: Samples,
+                  others: np.ndarray, y: np.ndarray, var: float) -> tuple[dict, list]:
+    """Standard uncertainties of parameters a finding's search set on a grid (a
+    frequency, a time constant, a stick distance), each from the curvature of the
+    joint fit's residual sum of squares as that parameter alone moves (every linear
+    coefficient, the other findings' included, fitted again; the finding's other
+    searched parameters held): a change of ``var`` (the residual's variance per
+    sample, :func:`_residual_variance`) is one standard uncertainty.  The step is sized
+    until the change is between 0.3 and 300 of those (the sum is a parabola there, not
+    yet the rounding of the sums); the distance from the value on the grid to the
+    parabola's bottom is added in quadrature.  A parameter the fit does not curve
+    around (flat, or a maximum) is not determined by the recording; one whose columns
+    cannot be made at the step keeps no uncertainty.  (std, undetermined)."""
+    def rss(nl2) -> float:
+        C, _ = eff.columns(ctx, S, nl2)
+        M = np.column_stack([others, C]) if others.shape[1] else C
+        r = y - M @ _solve(M, y)
+        return float(r @ r)
+
+    std, undetermined = {}, []
+    if var <= 0.0 or not keys:
+        return std, undetermined
+    r0 = rss(nl)
+    for key in keys:
+        x0 = float(nl[key])
+        if x0 == 0.0:
+            continue
+        h = 1e-3 * abs(x0)
+        d2 = slope = math.nan
+        try:
+            for _ in range(8):
+                up, down = rss({**nl, key: x0 + h}), rss({**nl, key: x0 - h})
+                d2, slope = up + down - 2.0 * r0, up - down
+                size = max(d2, abs(slope)) / var
+                if size > 300.0 and h > 1e-9 * abs(x0):
+                    h /= 10.0
+                elif size < 0.3 and h < 0.1 * abs(x0):
+                    h *= 10.0
+                else:
+                    break
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError, ZeroDivisionError):
+            continue
+        if not (math.isfinite(d2) and d2 > 0.0):
+            undetermined.append(key)
+            continue
+        curvature = d2 / (h * h)
+        off = slope / (2.0 * h) / curvature  # grid value minus the parabola's bottom
+        std[key] = math.sqrt(2.0 * var / curvature + off * off)
+    return std, undetermined
+
+
+def _covariance(A: np.ndarray, resid: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """Covariance of :func:`_solve`'s coefficients: the residual's variance (what the
+    fit leaves, unexplained structure included: not only the sensor's noise), times
+    (1 + rho) / (1 - rho) for the residual's correlation from sample to sample (samples
+    count as fewer independent ones, as in the selection), through the pseudo-inverse
+    at :func:`_solve`'s threshold.  The instrument's gain scales the coefficients
+    together: :data:`GAIN_STD` squared times ``coef coef^T`` is added by the caller,
+    which has them.  A coefficient with a part in a combination the data
+    cannot tell apart (below that threshold) gets an infinite variance; so does one the
+    bar cannot see."""
+    p = A.shape[1]
+    if p == 0:
+        return np.zeros((0, 0))
+    var = _residual_variance(resid, tau)
+    scale = np.sqrt((A * A).sum(0))
+    blind = _blind(A)
+    scale[blind] = np.inf
+    _, sv, vt = np.linalg.svd(A / scale, full_matrices=False)
+    keep = sv > 1e-5 * sv[0] if len(sv) and sv[0] > 0 else np.zeros(len(sv), bool)
+    V = vt[keep].T
+    cov = (V / sv[keep] ** 2) @ V.T * var
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cov = cov / np.outer(scale, scale)
+    cov[blind, :] = 0.0
+    cov[:, blind] = 0.0
+    # the part of each coefficient's direction outside the determined subspace
+    lost = 1.0 - (V * V).sum(1)
+    open_ = blind | (lost > 1e-6)
+    cov[open_, open_] = np.inf
+    return cov
+
+
 def _seen_parameters(eff: Effect, C: np.ndarray, coef: np.ndarray, labels, nl: dict,
-                     ctx: Context) -> tuple[dict, list]:
+                     ctx: Context, cov: np.ndarray | None = None
+                     ) -> tuple[dict, list, dict, list]:
     """A finding's parameters without those the bar cannot see (a column below
     :func:`_solve`'s threshold everywhere: a spindle's Y drift on a B-C table set-up that
     keeps the bar in the XZ plane), which least squares leaves at 0 and which are not
-    estimates; and the names of those left out."""
+    estimates; and the names of those left out.
+
+    With ``cov``, the coefficients' covariance (:func:`_covariance`), also each
+    parameter's standard uncertainty, propagated through ``eff.parameters`` by central
+    differences (a lag from a shrink's square root, an amplitude from a sine and a
+    cosine), and the names of the parameters the data do not determine apart from the
+    others (an infinite variance), which are left out like the unseen ones: never more
+    numbers than the recording's rank.  Parameters the coefficients do not move (found
+    by a search on a grid: a frequency, a time constant) get no uncertainty here."""
     blind = _blind(C)
-    if not blind.any():
-        return eff.parameters(coef, labels, nl, ctx), []
     coef = np.where(blind, np.nan, coef)
     with np.errstate(invalid="ignore"):
         out = eff.parameters(coef, labels, nl, ctx)
     unseen = [k for k, v in out.items() if isinstance(v, float) and math.isnan(v)]
-    return {k: v for k, v in out.items() if k not in unseen}, unseen
+    out = {k: v for k, v in out.items() if k not in unseen}
+    if cov is None:
+        return out, unseen, {}, []
+    std, undetermined = _propagated(eff, coef, cov, labels, nl, ctx, out, blind)
+    out = {k: v for k, v in out.items() if k not in undetermined}
+    return out, unseen, std, undetermined
+
+
+def _propagated(eff: Effect, coef: np.ndarray, cov: np.ndarray, labels, nl: dict,
+                ctx: Context, params: dict, blind: np.ndarray) -> tuple[dict, list]:
+    """Standard uncertainties of ``params`` (the float ones) from the coefficients'
+    covariance, and the parameters that depend on an undetermined coefficient."""
+    names = [k for k, v in params.items() if isinstance(v, float)]
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    open_ = ~np.isfinite(sd) & ~blind
+    jac = np.zeros((len(names), len(coef)))
+    for i in np.flatnonzero(~blind):
+        h = 1e-3 * (sd[i] if np.isfinite(sd[i]) and sd[i] > 0 else max(abs(coef[i]), 1e-9))
+        hi, lo = coef.copy(), coef.copy()
+        hi[i] += h
+        lo[i] -= h
+        with np.errstate(invalid="ignore", divide="ignore"):
+            up = eff.parameters(hi, labels, nl, ctx)
+            down = eff.parameters(lo, labels, nl, ctx)
+        for n, k in enumerate(names):
+            a, b = up.get(k), down.get(k)
+            if isinstance(a, float) and isinstance(b, float):
+                jac[n, i] = (a - b) / (2.0 * h)
+    moves = np.abs(jac) > 0
+    undetermined = [k for n, k in enumerate(names) if (moves[n] & open_).any()]
+    det = ~blind & ~open_
+    sub = cov[np.ix_(det, det)]
+    std = {}
+    for n, k in enumerate(names):
+        if k in undetermined or not moves[n].any():
+            continue
+        g = jac[n, det]
+        v = float(g @ sub @ g)
+        if math.isfinite(v) and v >= 0.0:
+            std[k] = math.sqrt(v)
+        else:
+            undetermined.append(k)
+    return std, undetermined
 
 
 def _heldout_need(opt: "Options", mse_ho: float, noise: float, C_ho: np.ndarray) -> float:
@@ -1271,13 +1423,25 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
         beta, fitted = np.zeros(0), np.zeros(len(allsel))
     resid = y_all - fitted
     noise = noise_estimate(resid, tau[allsel])
+    cov = (_covariance(A, resid, tau[allsel]) + GAIN_STD ** 2 * np.outer(beta, beta)
+           if blocks else np.zeros((0, 0)))
+    var_all = _residual_variance(resid, tau[allsel])
     series_idx = idx[allsel]
     contribs = {}
     for f, (eff, nl, labels), sl in zip(findings, chosen, slices):
         contrib = blocks[slices.index(sl)] @ beta[sl]
         contribs[f.effect] = contrib
-        f.parameters, f.unseen = _seen_parameters(eff, blocks[slices.index(sl)], beta[sl],
-                                                  labels, nl, ctx)
+        f.parameters, f.unseen, f.uncertainty, f.undetermined = _seen_parameters(
+            eff, blocks[slices.index(sl)], beta[sl], labels, nl, ctx, cov[sl, sl])
+        searched = [k for k, v in f.parameters.items() if isinstance(v, float)
+                    and k not in f.uncertainty and isinstance(nl.get(k), float)]
+        if searched:
+            std, lost = _searched_std(eff, nl, searched, ctx, S_all,
+                                      np.delete(A, np.arange(A.shape[1])[sl], axis=1),
+                                      y_all, var_all)
+            f.uncertainty.update(std)
+            f.undetermined += lost
+            f.parameters = {k: v for k, v in f.parameters.items() if k not in lost}
         f.contribution_rms_um = rms(contrib)
         f.where = _where(ctx, series_idx, tau[allsel], contrib)
         # mimics: which other effects reproduce this finding's own signal
@@ -1378,6 +1542,9 @@ def _merge_aliased(findings: list, contribs: dict, ctx: Context, idx: np.ndarray
         keep.parameters = {**keep.parameters,
                            **{f"{drop.effect}.{k}": v for k, v in drop.parameters.items()}}
         keep.unseen = keep.unseen + [f"{drop.effect}.{k}" for k in drop.unseen]
+        keep.uncertainty = {**keep.uncertainty,
+                            **{f"{drop.effect}.{k}": v for k, v in drop.uncertainty.items()}}
+        keep.undetermined = keep.undetermined + [f"{drop.effect}.{k}" for k in drop.undetermined]
         keep.heldout_rms_after_um = min(keep.heldout_rms_after_um, drop.heldout_rms_after_um)
         keep.rms_after_um = min(keep.rms_after_um, drop.rms_after_um)
         keep.ambiguous_with, keep.separate_by = [drop.effect], how

@@ -26,6 +26,20 @@ def _clean(v):
     return v
 
 
+def parameters_text(params: dict, std: dict) -> str:
+    """``name value +- standard uncertainty`` for each parameter; a float without one
+    was found by a search on a grid and says so."""
+    out = []
+    for k, v in params.items():
+        if not isinstance(v, float):
+            out.append(f"{k} {v}")
+        elif std.get(k) is None:
+            out.append(f"{k} {v:.4g} (grid search)")
+        else:
+            out.append(f"{k} {v:.4g} +- {std[k]:.2g}")
+    return ", ".join(out)
+
+
 def to_json(d: Diagnosis) -> dict:
     al = d.alignment
     out = {
@@ -40,7 +54,11 @@ def to_json(d: Diagnosis) -> dict:
         "gap": d.gap,
         "findings": [{
             "rank": k + 1, "effect": f.effect, "title": f.title, "parameters": f.parameters,
+            "parameter_std": {p: f.uncertainty[p] for p in f.parameters if p in f.uncertainty},
+            "searched_on_a_grid": [p for p, v in f.parameters.items()
+                                   if isinstance(v, float) and p not in f.uncertainty],
             "not_seen_by_the_bar": f.unseen,
+            "not_determined": f.undetermined,
             "where": {"segments": f.where.get("segments", []),
                       "time_windows_s": f.where.get("time_windows_s", []),
                       "phase_rms_um": f.where.get("phase_rms_um", {}),
@@ -96,13 +114,15 @@ def summary_text(d: Diagnosis) -> str:
     if not d.findings:
         lines.append("Findings: none - no effect of the library is supported by the data.")
     for k, f in enumerate(d.findings, start=1):
-        par = ", ".join(f"{a} {b:.4g}" if isinstance(b, float) else f"{a} {b}"
-                        for a, b in f.parameters.items())
         name = " or ".join([f.effect, *f.ambiguous_with])
-        lines.append(f"{k}. {name} ({f.confidence} confidence): {par}")
+        lines.append(f"{k}. {name} ({f.confidence} confidence): "
+                     f"{parameters_text(f.parameters, f.uncertainty)}")
         if f.unseen:
             lines.append(f"   not seen by the bar in this program (not estimated): "
                          f"{', '.join(f.unseen)}")
+        if f.undetermined:
+            lines.append(f"   not determined apart from the other parameters by this "
+                         f"recording (not reported): {', '.join(f.undetermined)}")
         lines.append(f"   RMS {f.rms_before_um:.3f} -> {f.rms_after_um:.3f} um fitted, "
                      f"held-out {f.heldout_rms_before_um:.3f} -> {f.heldout_rms_after_um:.3f} um")
         mimics = [m for m in f.mimics if m["effect"] not in f.ambiguous_with]

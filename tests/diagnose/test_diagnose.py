@@ -78,6 +78,15 @@ def test_a_hidden_effect_is_named_first_and_measured(setup, tmp_path, hidden, ch
     assert d.findings and d.findings[0].effect == hidden.name, [f.effect for f in d.findings]
     f = d.findings[0]
     assert check(f.parameters), f.parameters
+    # every number reported comes with its uncertainty, or was searched on a grid
+    for g in d.findings:
+        for k, v in g.parameters.items():
+            if isinstance(v, float):
+                assert k in g.uncertainty or k in g.nonlinear, (g.effect, k)
+    if hidden.name == "setup_offset":  # and the uncertainty holds
+        for k in ("dx_um", "dy_um", "dz_um"):
+            assert abs(f.parameters[k] - hidden.params[k]) <= 3 * f.uncertainty[k], (
+                k, f.parameters[k], f.uncertainty[k])
     # it holds on segments the fit never saw
     assert f.heldout_rms_after_um < 0.6 * f.heldout_rms_before_um
     assert d.unexplained["significant"] is False
@@ -425,13 +434,60 @@ def test_a_parameter_the_bar_cannot_see_is_not_reported():
     C = rng.normal(size=(200, 3))
     C[:, 1] = 0.0
     labels = ("height_X_um", "height_Y_um", "height_Z_um")
-    par, unseen = _seen_parameters(ReversalSpike(), C, np.array([2.0, 0.0, -1.0]), labels,
-                                   {"tau_ms": 20.0}, None)
+    par, unseen, _, _ = _seen_parameters(ReversalSpike(), C, np.array([2.0, 0.0, -1.0]),
+                                         labels, {"tau_ms": 20.0}, None)
     assert unseen == ["height_Y_um"]
     assert par == {"tau_ms": 20.0, "height_X_um": 2.0, "height_Z_um": -1.0}
-    par, unseen = _seen_parameters(ReversalSpike(), rng.normal(size=(200, 3)),
-                                   np.array([2.0, 0.5, -1.0]), labels, {"tau_ms": 20.0}, None)
+    par, unseen, _, _ = _seen_parameters(ReversalSpike(), rng.normal(size=(200, 3)),
+                                         np.array([2.0, 0.5, -1.0]), labels, {"tau_ms": 20.0},
+                                         None)
     assert unseen == [] and par["height_Y_um"] == 0.5
+
+
+def test_stated_uncertainties_hold_and_undetermined_parameters_are_not_reported():
+    """The coefficients' stated uncertainties hold on noise correlated from sample to
+    sample (300 repeats: the errors over the stated uncertainties spread as 1); two
+    columns the data cannot tell apart are not reported, and a lag read through a
+    square root carries its uncertainty through it."""
+    from sdit_path.diagnose.diagnose import _covariance, _seen_parameters, _solve
+    from sdit_path.diagnose.effects import ReversalSpike, ServoLag
+
+    rng = np.random.default_rng(11)
+    n = 3000
+    tau = np.arange(n) * 1e-3
+    A = np.column_stack([np.ones(n), np.sin(2 * np.pi * tau), np.cos(6 * np.pi * tau ** 2)])
+    true = np.array([1.0, -2.0, 0.5])
+    z = []
+    for _ in range(300):
+        e = np.zeros(n)
+        w = rng.normal(0.0, 0.3, n)
+        for i in range(1, n):  # AR(1), rho 0.6: the plain formula would state 2 times too little
+            e[i] = 0.6 * e[i - 1] + w[i]
+        y = A @ true + e
+        beta = _solve(A, y)
+        z.append((beta - true) / np.sqrt(np.diag(_covariance(A, y - A @ beta, tau))))
+    spread = np.std(z, axis=0)
+    assert np.all((spread > 0.8) & (spread < 1.25)), spread
+
+    # the same column twice: neither is determined apart from the other
+    B = np.column_stack([A[:, 0], A[:, 1], A[:, 1]])
+    y = B @ [1.0, 1.0, 1.0] + rng.normal(0.0, 0.1, n)
+    beta = _solve(B, y)
+    cov = _covariance(B, y - B @ beta, tau)
+    labels = ("height_X_um", "height_Y_um", "height_Z_um")
+    par, unseen, std, undetermined = _seen_parameters(ReversalSpike(), B, beta, labels,
+                                                      {"tau_ms": 20.0}, None, cov)
+    assert undetermined == ["height_Y_um", "height_Z_um"] and unseen == []
+    assert set(par) == {"tau_ms", "height_X_um"} and set(std) == {"height_X_um"}
+    assert std["height_X_um"] == pytest.approx(np.sqrt(cov[0, 0]))
+
+    # tau = tau0 sqrt(c): its uncertainty is tau0 / (2 sqrt(c)) times c's
+    C = A[:, :1]
+    cov = np.array([[0.01 ** 2]])
+    par, _, std, _ = _seen_parameters(ServoLag(), C, np.array([0.81]), ("scale",),
+                                      {"tau_ms": 40.0}, None, cov)
+    assert par["tau_ms"] == pytest.approx(36.0)
+    assert std["tau_ms"] == pytest.approx(40.0 / (2 * 0.9) * 0.01, rel=1e-4)
 
 
 def test_a_sticking_axis_crawls_are_left_out_of_the_timing_check(setup):
