@@ -245,8 +245,9 @@ def _residual_variance(resid: np.ndarray, tau: np.ndarray) -> float:
     return float(np.mean(resid * resid)) * (1.0 + rho) / (1.0 - rho)
 
 
-def _searched_std(eff: Effect, nl: dict, keys: list, ctx: Context, S: Samples,
-                  others: np.ndarray, y: np.ndarray, var: float) -> tuple[dict, list]:
+def _searched_std(eff: Effect, nl: dict, keys: list, labels, ctx: Context, S: Samples,
+                  others: np.ndarray, y: np.ndarray, var: float
+                  ) -> tuple[dict, list, dict]:
     """Standard uncertainties of parameters a finding's search set on a grid (a
     frequency, a time constant, a stick distance), each from the curvature of the
     joint fit's residual sum of squares as that parameter alone moves (every linear
@@ -255,19 +256,31 @@ def _searched_std(eff: Effect, nl: dict, keys: list, ctx: Context, S: Samples,
     sample, :func:`_residual_variance`) is one standard uncertainty.  The step is sized
     until the change is between 0.3 and 300 of those (the sum is a parabola there, not
     yet the rounding of the sums); the distance from the value on the grid to the
-    parabola's bottom is added in quadrature.  A parameter the fit does not curve
+    parabola's bottom is added in quadrature.  Beyond the parabola the fit is looked
+    at :data:`SEARCH_SCAN` away: the uncertainty is at least the farthest of those
+    steps that fits within one ``var`` of it.  A parameter the fit does not curve
     around (flat, or a maximum) is not determined by the recording; one whose columns
-    cannot be made at the step keeps no uncertainty.  (std, undetermined)."""
-    def rss(nl2) -> float:
+    cannot be made at the step keeps no uncertainty.
+
+    What the searched parameter leaves open spills into the finding's other
+    parameters (a cyclic error's phase at the machine's zero moves with its pitch):
+    the third result is, per parameter, the variance to add, its change along the
+    profile times the searched parameter's uncertainty, squared.
+    (std, undetermined, spill)."""
+    def fit(nl2) -> tuple[float, dict]:
         C, _ = eff.columns(ctx, S, nl2)
         M = np.column_stack([others, C]) if others.shape[1] else C
-        r = y - M @ _solve(M, y)
-        return float(r @ r)
+        coef = _solve(M, y)
+        r = y - M @ coef
+        with np.errstate(invalid="ignore", divide="ignore"):
+            par = eff.parameters(coef[M.shape[1] - C.shape[1]:], labels, nl2, ctx)
+        return float(r @ r), par
 
-    std, undetermined = {}, []
+    std, undetermined, spill = {}, [], {}
     if var <= 0.0 or not keys:
-        return std, undetermined
-    r0 = rss(nl)
+        return std, undetermined, spill
+    failed = (ValueError, FloatingPointError, np.linalg.LinAlgError, ZeroDivisionError)
+    r0, _ = fit(nl)
     for key in keys:
         x0 = float(nl[key])
         if x0 == 0.0:
@@ -276,7 +289,7 @@ def _searched_std(eff: Effect, nl: dict, keys: list, ctx: Context, S: Samples,
         d2 = slope = math.nan
         try:
             for _ in range(8):
-                up, down = rss({**nl, key: x0 + h}), rss({**nl, key: x0 - h})
+                (up, p_up), (down, p_down) = fit({**nl, key: x0 + h}), fit({**nl, key: x0 - h})
                 d2, slope = up + down - 2.0 * r0, up - down
                 size = max(d2, abs(slope)) / var
                 if size > 300.0 and h > 1e-9 * abs(x0):
@@ -285,15 +298,39 @@ def _searched_std(eff: Effect, nl: dict, keys: list, ctx: Context, S: Samples,
                     h *= 10.0
                 else:
                     break
-        except (ValueError, FloatingPointError, np.linalg.LinAlgError, ZeroDivisionError):
+        except failed:
             continue
         if not (math.isfinite(d2) and d2 > 0.0):
             undetermined.append(key)
             continue
         curvature = d2 / (h * h)
         off = slope / (2.0 * h) / curvature  # grid value minus the parabola's bottom
-        std[key] = math.sqrt(2.0 * var / curvature + off * off)
-    return std, undetermined
+        sd = math.sqrt(2.0 * var / curvature + off * off)
+        # a landscape with other valleys (a saw-tooth's period, a frequency) is not
+        # its local parabola: a value up to 10 % away that fits as well (or better)
+        # is as likely, and the uncertainty is at least that far
+        for rel in SEARCH_SCAN:
+            if rel * abs(x0) <= sd:
+                continue
+            try:
+                near = min(fit({**nl, key: x0 * (1.0 + rel)})[0],
+                           fit({**nl, key: x0 * (1.0 - rel)})[0])
+            except failed:
+                continue
+            if near - r0 <= var:
+                sd = rel * abs(x0)
+        std[key] = sd
+        for name, a in p_up.items():
+            b = p_down.get(name)
+            if name != key and isinstance(a, float) and isinstance(b, float):
+                change = (a - b) / (2.0 * h) * sd
+                if math.isfinite(change):
+                    spill[name] = spill.get(name, 0.0) + change * change
+    return std, undetermined, spill
+
+
+#: relative steps at which a searched parameter's fit is looked at beyond its parabola
+SEARCH_SCAN = (0.003, 0.01, 0.03, 0.1)
 
 
 def _covariance(A: np.ndarray, resid: np.ndarray, tau: np.ndarray) -> np.ndarray:
@@ -1436,9 +1473,12 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
         searched = [k for k, v in f.parameters.items() if isinstance(v, float)
                     and k not in f.uncertainty and isinstance(nl.get(k), float)]
         if searched:
-            std, lost = _searched_std(eff, nl, searched, ctx, S_all,
-                                      np.delete(A, np.arange(A.shape[1])[sl], axis=1),
-                                      y_all, var_all)
+            std, lost, spill = _searched_std(eff, nl, searched, labels, ctx, S_all,
+                                             np.delete(A, np.arange(A.shape[1])[sl], axis=1),
+                                             y_all, var_all)
+            for k, v in spill.items():
+                if k in f.uncertainty:
+                    f.uncertainty[k] = math.sqrt(f.uncertainty[k] ** 2 + v)
             f.uncertainty.update(std)
             f.undetermined += lost
             f.parameters = {k: v for k, v in f.parameters.items() if k not in lost}
