@@ -264,8 +264,9 @@ def _searched_std(eff: Effect, nl: dict, keys: list, labels, ctx: Context, S: Sa
 
     What the searched parameter leaves open spills into the finding's other
     parameters (a cyclic error's phase at the machine's zero moves with its pitch):
-    the third result is, per parameter, the variance to add, its change along the
-    profile times the searched parameter's uncertainty, squared.
+    the third result is, per parameter, the variance to add: its change along the
+    profile times the searched parameter's uncertainty, squared, or, where a value
+    farther away fits as well, how far it lies from its value there.
     (std, undetermined, spill)."""
     def fit(nl2) -> tuple[float, dict]:
         C, _ = eff.columns(ctx, S, nl2)
@@ -280,7 +281,7 @@ def _searched_std(eff: Effect, nl: dict, keys: list, labels, ctx: Context, S: Sa
     if var <= 0.0 or not keys:
         return std, undetermined, spill
     failed = (ValueError, FloatingPointError, np.linalg.LinAlgError, ZeroDivisionError)
-    r0, _ = fit(nl)
+    r0, base = fit(nl)
     for key in keys:
         x0 = float(nl[key])
         if x0 == 0.0:
@@ -306,26 +307,40 @@ def _searched_std(eff: Effect, nl: dict, keys: list, labels, ctx: Context, S: Sa
         curvature = d2 / (h * h)
         off = slope / (2.0 * h) / curvature  # grid value minus the parabola's bottom
         sd = math.sqrt(2.0 * var / curvature + off * off)
+        # what the others move by: along the parabola, their change times sd
+        moved = {}
+        for name, a in p_up.items():
+            b = p_down.get(name)
+            if name != key and isinstance(a, float) and isinstance(b, float):
+                change = abs(a - b) / (2.0 * h) * sd
+                if math.isfinite(change):
+                    moved[name] = change
         # a landscape with other valleys (a saw-tooth's period, a frequency) is not
         # its local parabola: a value up to 10 % away that fits as well (or better)
-        # is as likely, and the uncertainty is at least that far
+        # is as likely, the uncertainty is at least that far, and the others move by
+        # as much as they differ there
         for rel in SEARCH_SCAN:
             if rel * abs(x0) <= sd:
                 continue
             try:
-                near = min(fit({**nl, key: x0 * (1.0 + rel)})[0],
-                           fit({**nl, key: x0 * (1.0 - rel)})[0])
+                there = [fit({**nl, key: x0 * (1.0 + rel)}), fit({**nl, key: x0 * (1.0 - rel)})]
             except failed:
                 continue
-            if near - r0 <= var:
-                sd = rel * abs(x0)
+            if min(r for r, _ in there) - r0 > var:
+                continue
+            sd = rel * abs(x0)
+            moved = {}
+            for r, par in there:
+                if r - r0 > var:
+                    continue
+                for name, a in par.items():
+                    b = base.get(name)
+                    if name != key and isinstance(a, float) and isinstance(b, float) \
+                            and math.isfinite(a - b):
+                        moved[name] = max(moved.get(name, 0.0), abs(a - b))
         std[key] = sd
-        for name, a in p_up.items():
-            b = p_down.get(name)
-            if name != key and isinstance(a, float) and isinstance(b, float):
-                change = (a - b) / (2.0 * h) * sd
-                if math.isfinite(change):
-                    spill[name] = spill.get(name, 0.0) + change * change
+        for name, change in moved.items():
+            spill[name] = spill.get(name, 0.0) + change * change
     return std, undetermined, spill
 
 
