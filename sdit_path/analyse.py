@@ -362,7 +362,8 @@ def _report(done: list[Analysed], geometry: dict) -> dict:
         for f in dj["findings"]:
             across.setdefault(f["effect"], []).append(
                 {"recording": a.label, "program": a.program, "confidence": f["confidence"],
-                 "parameters": f["parameters"], "contribution_rms_um": f["contribution_rms_um"]})
+                 "parameters": f["parameters"], "parameter_std": f["parameter_std"],
+                 "contribution_rms_um": f["contribution_rms_um"]})
         per.append({"file": a.label, "program": a.program, "matched": a.matched,
                     "first_alignment": a.aligned.as_json(), "diagnosis": dj,
                     "nuisances": geometry["nuisances"][k]})

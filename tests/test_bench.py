@@ -58,9 +58,10 @@ def test_diagnosis_benchmark_runs_and_prints_its_ratio():
 
 
 def test_perturb_selfcheck_runs_and_prints_its_scores(plan_f1500):
-    """On the plan the diagnosis tests read (the self-check's own: the sample at F1500)."""
+    """On the plan the diagnosis tests read (the self-check's own: the sample at F1500);
+    two cases at a time, on the machine's two cores."""
     r = subprocess.run([sys.executable, str(BENCH / "perturb_selfcheck.py"), "--cases", "4",
-                        "--jobs", "1", "--plan", str(plan_f1500)], capture_output=True,
+                        "--jobs", "2", "--plan", str(plan_f1500)], capture_output=True,
                        text=True, timeout=900)
     assert r.returncode == 0, r.stderr
     for key in ("top-1 effect", "false findings, clean traces", "honest outside the library",

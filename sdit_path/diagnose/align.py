@@ -37,6 +37,8 @@ class Alignment:
     offset_std_s: float
     clock_std_ppm: float
     rms_um: float
+    #: why the uncertainties are wider than the fit's own (one line each)
+    widened_by: tuple[str, ...] = ()
 
     def program_time(self, t_m: np.ndarray) -> np.ndarray:
         return (np.asarray(t_m) - self.offset_s) / (1.0 + self.clock_ppm * 1e-6)

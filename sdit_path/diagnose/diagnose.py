@@ -268,13 +268,22 @@ def _searched_std(eff: Effect, nl: dict, keys: list, labels, ctx: Context, S: Sa
     profile times the searched parameter's uncertainty, squared, or, where a value
     farther away fits as well, how far it lies from its value there.
     (std, undetermined, spill)."""
+    # the others' columns projected out once (Frisch-Waugh-Lovell: the finding's
+    # coefficients and the residual are the joint fit's); each trial then fits only its
+    # own columns, not every column on every sample again
+    U = np.zeros((len(y), 0))
+    if others.shape[1]:
+        u, sv, _ = np.linalg.svd(others, full_matrices=False)
+        U = u[:, sv > 1e-10 * sv[0]] if len(sv) and sv[0] > 0 else U
+    y_rest = y - U @ (U.T @ y)
+
     def fit(nl2) -> tuple[float, dict]:
         C, _ = eff.columns(ctx, S, nl2)
-        M = np.column_stack([others, C]) if others.shape[1] else C
-        coef = _solve(M, y)
-        r = y - M @ coef
+        C = C - U @ (U.T @ C)
+        coef = _solve(C, y_rest)
+        r = y_rest - C @ coef
         with np.errstate(invalid="ignore", divide="ignore"):
-            par = eff.parameters(coef[M.shape[1] - C.shape[1]:], labels, nl2, ctx)
+            par = eff.parameters(coef, labels, nl2, ctx)
         return float(r @ r), par
 
     std, undetermined, spill = {}, [], {}
@@ -607,6 +616,13 @@ UNSURE_MARGIN_S = 0.02
 UNSURE_SHARE = 0.5
 
 
+def _unsure_effects(lib: list[Effect], findings: list) -> list[str]:
+    """The findings whose model may leave the reading open somewhere (``unsure_in_time``)."""
+    by = {e.name: e for e in lib}
+    return sorted(f.effect for f in findings
+                  if type(by[f.effect]).unsure_in_time is not Effect.unsure_in_time)
+
+
 def _timing_reading(ctx: Context, lib: list[Effect], X: np.ndarray, t_m: np.ndarray,
                     y: np.ndarray, findings: list, al: Alignment) -> np.ndarray:
     """``y`` without the samples (as not finite) where a finding, fitted at ``al`` with
@@ -614,8 +630,7 @@ def _timing_reading(ctx: Context, lib: list[Effect], X: np.ndarray, t_m: np.ndar
     open (``unsure_in_time``), widened by the settling after them and by three of
     ``al``'s offset uncertainties (at most 50 ms); ``y`` itself when there are none."""
     by = {e.name: e for e in lib}
-    unsure = {f.effect for f in findings
-              if type(by[f.effect]).unsure_in_time is not Effect.unsure_in_time}
+    unsure = _unsure_effects(lib, findings)
     if not unsure:
         return y
     ok = np.isfinite(y)
@@ -663,7 +678,10 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
         X = _model_columns(ctx, lib, expected, findings)
         D = _shape_columns(ctx, lib, findings)
         al, jump = _realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:], D]), first_al)
-    al = _widened(al, widen)
+    by = {e.name: e for e in lib}
+    lagged = sorted(f.effect for f in findings if by[f.effect].timing_parameter)
+    al = _widened(al, widen, f"what the lag of {' and '.join(lagged)}, profiled with the "
+                             f"timing, leaves open")
     y_sure = _timing_reading(ctx, lib, X, t_m, y, findings, first_al)
     if y_sure is not y:
         # the timing read again without what a finding's model leaves open.  Were the
@@ -684,10 +702,15 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
             spread = max(s_sure * s_sure - s_all * s_all, 0.0)
             return math.sqrt(d * d - spread) if d * d > 4.0 * spread else 0.0
 
+        unsure = _unsure_effects(lib, findings)
         wide = _widened(al, (excess(sure.offset_s - al.offset_s, sure.offset_std_s,
                                     al.offset_std_s),
                              excess(sure.clock_ppm - al.clock_ppm, sure.clock_std_ppm,
-                                    al.clock_std_ppm)))
+                                    al.clock_std_ppm)),
+                        f"read without the samples {' and '.join(unsure)} leaves open, the "
+                        f"start moved {(sure.offset_s - al.offset_s) * 1e3:+.2f} ms and the "
+                        f"clock {sure.clock_ppm - al.clock_ppm:+.1f} ppm, more than those "
+                        f"samples' information explains")
         # never wider than the documented clock range allows (the spread of a rate
         # anywhere in twice the range, as for a rate at its edge)
         cap = max(al.clock_std_ppm, 2 * CLOCK_LIMIT_PPM / math.sqrt(3.0))
@@ -732,7 +755,10 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
         if dchi2 <= 9.0:
             scale = math.sqrt(max(dchi2, 1.0))
             al = _widened(al, (abs(worse.offset_s - better.offset_s) / scale,
-                               abs(worse.clock_ppm - better.clock_ppm) / scale))
+                               abs(worse.clock_ppm - better.clock_ppm) / scale),
+                          f"{partner} in place of {f.effect} (which this recording cannot "
+                          f"tell apart) fits about as well with the start "
+                          f"{abs(worse.offset_s - better.offset_s) * 1e3:.2f} ms elsewhere")
         names.add(partner)
     return al, jump, names
 
@@ -875,12 +901,16 @@ _PROFILE_SAMPLES = 30_000
 _REFINE_SAMPLES = 120_000
 
 
-def _widened(al: Alignment, widen: tuple[float, float]) -> Alignment:
-    """``al`` with its uncertainties taking in what a profiled parameter leaves open."""
+def _widened(al: Alignment, widen: tuple[float, float], why: str) -> Alignment:
+    """``al`` with its uncertainties taking in ``widen`` (offset s, clock ppm) in
+    quadrature, and ``why`` with the amounts among its reasons."""
     if widen[0] <= 0 and widen[1] <= 0:
         return al
-    return dataclasses.replace(al, offset_std_s=float(math.hypot(al.offset_std_s, widen[0])),
-                               clock_std_ppm=float(math.hypot(al.clock_std_ppm, widen[1])))
+    return dataclasses.replace(
+        al, offset_std_s=float(math.hypot(al.offset_std_s, widen[0])),
+        clock_std_ppm=float(math.hypot(al.clock_std_ppm, widen[1])),
+        widened_by=(*al.widened_by, f"{why} (+- {widen[0] * 1e3:.2f} ms, "
+                                    f"+- {widen[1]:.1f} ppm in quadrature)"))
 
 
 class _TrialModel:

@@ -47,6 +47,7 @@ def to_json(d: Diagnosis) -> dict:
         "alignment": {"offset_s": al.offset_s, "clock_ppm": al.clock_ppm,
                       "offset_std_s": al.offset_std_s, "clock_std_ppm": al.clock_std_ppm,
                       "timing_weak": timing_is_weak(al),
+                      "widened_by": list(al.widened_by),
                       "note": "measured t = offset_s + program t * (1 + clock_ppm 1e-6); a "
                               "following delay of the machine is part of the offset"},
         "samples": d.samples,
@@ -89,6 +90,8 @@ def summary_text(d: Diagnosis) -> str:
                  " The recording holds little timing information: effects read through "
                  "their timing (lag, smoothing, vibration, spikes) are named with at most "
                  "medium confidence." if timing_is_weak(al) else ""),
+             *([f"  Its uncertainty takes in: {'; '.join(al.widened_by)}."]
+               if al.widened_by else []),
              f"Gap (measured - simulated): RMS {d.gap['rms_um']:.3f} um, max |gap| "
              f"{d.gap['max_abs_um']:.3f} um; sensor noise about {d.noise_um:.3f} um."]
     jump = d.gap.get("setup_step")

@@ -138,13 +138,23 @@ def test_cli_perturb_diagnose_json_and_pictures(plan_dir, tmp_path):
         assert (tmp_path / "pics" / name).read_bytes()[:4] == b"\x89PNG"
 
 
-def test_same_input_same_report(setup, tmp_path):
+def test_same_input_same_report(setup, plan_dir, tmp_path):
+    """The same recording diagnosed twice gives the same report to the byte: here once
+    in this process and once, at the same time, by the command line in another (its own
+    hash seed, its own caches)."""
     plan, ctx, model = setup
     trace, _ = perturb(plan, PROGRAM, model, [Hidden("reversal_spike", {
         "axis": "X", "height_um": 6.0, "tau_ms": 30.0, "rise_ms": 2.0})], Recording(), 9, ctx)
-    a = to_json(diagnose(plan, PROGRAM, trace, model))
-    b = to_json(diagnose(plan, PROGRAM, trace, model))
-    assert json.dumps(a) == json.dumps(b)
+    measured, out = tmp_path / "m.csv", tmp_path / "d.json"
+    measured.write_text(measured_csv(trace))
+    other = subprocess.Popen([sys.executable, "-m", "sdit_path", "diagnose", "--plan",
+                              str(plan_dir), "--program", PROGRAM, "--measured", str(measured),
+                              "--model", "paper_table2", "--json", str(out), "-q"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    a = to_json(diagnose(plan, PROGRAM, read_trace(measured), model))
+    _, err = other.communicate(timeout=900)
+    assert other.returncode == 0, err
+    assert out.read_text() == json.dumps(a, indent=2) + "\n"
     assert a["findings"][0]["effect"] == "reversal_spike"
 
 
@@ -525,3 +535,32 @@ def test_a_sticking_axis_crawls_are_left_out_of_the_timing_check(setup):
     # Y's crawls away from X's stay in
     y_only = by_axis["Y"] & far
     assert y_only.any() and not out[y_only].any()
+
+
+def test_the_report_says_why_the_timing_is_wider_and_prints_each_uncertainty():
+    """A widening of the timing's uncertainty carries its reason into the report; each
+    parameter is printed with its uncertainty, or as found on a grid without one, and
+    an undetermined one is named, not printed."""
+    from sdit_path.diagnose.align import Alignment
+    from sdit_path.diagnose.diagnose import Diagnosis, Finding, _widened
+    from sdit_path.diagnose.report import summary_text
+
+    al = Alignment(3.2, -80.0, 0.0008, 4.0, 0.3)
+    assert _widened(al, (0.0, 0.0), "nothing") is al
+    wide = _widened(al, (0.0024, 3.0), "read without the crawls, the start moved")
+    assert wide.offset_std_s == pytest.approx(np.hypot(0.0008, 0.0024))
+    assert wide.widened_by == ("read without the crawls, the start moved "
+                               "(+- 2.40 ms, +- 3.0 ppm in quadrature)",)
+    f = Finding("stick_slip", "saw-tooth", {"stick_um": 8.6, "mean_lag_X_um": 0.89,
+                                            "amplitude_X_um": 0.15}, {"stick_um": 8.6},
+                ("mean_lag_X_um", "amplitude_X_um"), 1.0, 0.5, 1.0, 0.5, 20.0,
+                uncertainty={"mean_lag_X_um": 0.014, "amplitude_X_um": 0.043},
+                undetermined=["amplitude_Y_um"])
+    d = Diagnosis("SDIT_B", wide, {"rms_um": 1.0, "max_abs_um": 2.0, "where": {}}, [f],
+                  {"rms_um": 0.3, "significant": False, "where": {}}, 0.12,
+                  {"in_program": 100, "dropouts": 0, "fitted": 67, "heldout": 33}, {})
+    text = summary_text(d)
+    assert "Its uncertainty takes in: read without the crawls" in text
+    assert "stick_um 8.6 (grid search), mean_lag_X_um 0.89 +- 0.014, amplitude_X_um 0.15 +- 0.043" in text
+    assert "not determined apart from the other parameters" in text and "amplitude_Y_um" in text
+    assert to_json(d)["alignment"]["widened_by"] == list(wide.widened_by)
