@@ -81,7 +81,8 @@ class Finding:
     separate_by: str = ""
     #: parameters the bar cannot see in this program (not estimated, not reported)
     unseen: list = field(default_factory=list)
-    #: parameter -> standard uncertainty (those found by a search on a grid have none)
+    #: parameter -> standard uncertainty (a searched one whose columns could not be made
+    #: at the steps around it has none)
     uncertainty: dict = field(default_factory=dict)
     #: parameters the recording does not determine apart from the others' (not reported)
     undetermined: list = field(default_factory=list)
