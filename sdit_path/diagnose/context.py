@@ -56,10 +56,10 @@ class Context:
     arc_integral: np.ndarray
     run_start_mm: np.ndarray
     run_end_mm: np.ndarray
-    observable: tuple[int, ...] = ()
     #: unit bar direction in the machine's (bed) frame, ``(n, 3)``: a spindle's drift is
     #: seen through it (``u`` turns with a rotary table; without one it is ``u`` itself)
-    u_bed: np.ndarray | None = None
+    u_bed: np.ndarray
+    observable: tuple[int, ...] = ()
     _slow: dict = field(default_factory=dict)
 
     def slow_state(self, j: int, speed: float) -> tuple[np.ndarray, np.ndarray]:
@@ -202,6 +202,5 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     return Context(t, ball, u, length, speed, q, qdot, gain, direction, since,
                    tuple(rev_times), at_rev, moving, np.asarray(traj.segment, dtype=object), phase,
                    tuple(kin.names), linear, pivot, run_id.astype(int), v, acc, jerk, arc,
-                   integral, arc[first], arc[last_idx][run_no],
-                   tuple(j for j in range(m) if float(np.sqrt(np.mean(gain[:, j] ** 2))) > 1e-6),
-                   u_bed)
+                   integral, arc[first], arc[last_idx][run_no], u_bed,
+                   tuple(j for j in range(m) if float(np.sqrt(np.mean(gain[:, j] ** 2))) > 1e-6))
