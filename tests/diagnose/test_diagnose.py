@@ -564,3 +564,35 @@ def test_the_report_says_why_the_timing_is_wider_and_prints_each_uncertainty():
     assert "stick_um 8.6 (grid search), mean_lag_X_um 0.89 +- 0.014, amplitude_X_um 0.15 +- 0.043" in text
     assert "not determined apart from the other parameters" in text and "amplitude_Y_um" in text
     assert to_json(d)["alignment"]["widened_by"] == list(wide.widened_by)
+
+
+def test_the_set_up_is_read_again_at_rest_where_a_dynamic_model_misses():
+    """A constant (the set-up) fitted beside a motion-only column whose shape is not the
+    machine's takes up the difference, and the residual cannot show it; read again from
+    the settled dwells alone it is right, and the stated uncertainty takes in the
+    difference.  With the right shape nothing is widened."""
+    from types import SimpleNamespace
+
+    from sdit_path.diagnose.diagnose import GAIN_STD, _at_rest, _at_rest_check, _covariance, \
+        _solve
+
+    t = np.arange(30_000) * 1e-3
+    moving = (t % 3.0) < 1.0  # 1 s of motion, then a 2 s dwell
+    ctx = SimpleNamespace(phase=np.where(moving, "cruise", "dwell"), t_s=t, n=len(t))
+    rest = _at_rest(ctx, np.arange(len(t)))
+    assert rest.sum() == 10 * 1000 and not (rest & moving).any()
+    bump = np.where(moving, np.clip(np.sin(np.pi * (t % 3.0)), 0.0, None), 0.0)
+    model, truth = bump, bump ** 0.7  # what the library says, what the machine does
+    rng = np.random.default_rng(5)
+    A = np.column_stack([np.ones(len(t)), model])
+    for shape, widened in ((truth, True), (model, False)):
+        y = 0.2 + 0.5 * shape + rng.normal(0.0, 0.05, len(t))
+        beta = _solve(A, y)
+        cov = _covariance(A, y - A @ beta, t) + GAIN_STD ** 2 * np.outer(beta, beta)
+        before = cov[0, 0]
+        _at_rest_check(ctx, A, beta, cov, y, np.arange(len(t)), t, [slice(0, 1)])
+        if widened:
+            assert abs(beta[0] - 0.2) > 3 * np.sqrt(before)  # the fit alone overstates
+            assert abs(beta[0] - 0.2) <= 3 * np.sqrt(cov[0, 0])
+        else:
+            assert cov[0, 0] == before
