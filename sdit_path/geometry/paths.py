@@ -239,7 +239,6 @@ class PathBuilder:
         does: up the meridian from the first track's node 1 (with a meridian transit),
         along the layer's lower track to each sector and back, and down again."""
         h, t = self.hemi, self.config.test
-        n = h.nodes_per_track
         items: list[Run | Dwell | Remount] = []
         at = [""]
 
