@@ -3,7 +3,7 @@
 instrument and a set-up residual in every trace; nothing from sdit_path).
 
     python bench/blind_check.py [--per-program 51] [--plans DIR] [--seed 1] [--jobs 2]
-                                [--json OUT]
+                                [--magnitudes bad|typical] [--json OUT]
     python bench/blind_check.py --case PLAN:PROGRAM [--case ...] [--per-program 17] ...
     python bench/blind_check.py --rescore OUT.json [--programs SDIT_C,SDIT_B]
 
@@ -85,7 +85,7 @@ KINDS = (None, None) + gen.EFFECTS + gen.GAPS
 
 
 def run_case(job):
-    plan_dir, program, k, seed = job
+    plan_dir, program, k, seed, magnitudes = job
     from sdit_path.diagnose.diagnose import diagnose
     from sdit_path.diagnose.report import to_json
     from sdit_path.planfiles import load_plan
@@ -94,7 +94,7 @@ def run_case(job):
     pd_ = gen.load(plan_dir, program)
     effect = KINDS[k % len(KINDS)]
     rng = np.random.default_rng([seed, k, len(program)])
-    case = gen.draw(effect, rng, pd_) if effect else None
+    case = gen.draw(effect, rng, pd_, magnitudes) if effect else None
     text, truth = gen.record(pd_, case, seed * 100_000 + k)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "measured.csv"
@@ -227,6 +227,8 @@ def main() -> None:
     ap.add_argument("--per-program", type=int, default=len(KINDS))
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--magnitudes", choices=sorted(gen.RANGES), default="bad",
+                    help="The domain brief's bad (default) or typical magnitudes.")
     ap.add_argument("--only", default=None, help="Only these case numbers (comma-separated).")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--rescore", type=Path, default=None,
@@ -252,7 +254,7 @@ def main() -> None:
         plan_dir, program = spec.rsplit(":", 1)
         ks = ([int(k) for k in args.only.split(",")] if args.only
               else range(args.per_program))
-        jobs += [(plan_dir, program, k, args.seed) for k in ks]
+        jobs += [(plan_dir, program, k, args.seed, args.magnitudes) for k in ks]
     results = []
     with ProcessPoolExecutor(args.jobs) as pool:
         for r in pool.map(run_case, jobs):

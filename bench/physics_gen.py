@@ -4,7 +4,8 @@ It shares no model code with what it checks: nothing from ``sdit_path`` is impor
 It reads a plan directory as data (``config.toml`` with ``tomllib``, the timed
 trajectory with pandas), has its own forward kinematics (product of exponentials over
 the chains the config describes), its own effect models acting on the machine axes,
-and its own instrument.  Magnitudes come from the domain brief's table ("typical (bad)").
+and its own instrument.  Magnitudes come from the domain brief's table ("typical (bad)"):
+the bad ones by default, the typical ones with ``magnitudes="typical"``.
 
 Effects (physics, not the diagnoser's compact models):
 
@@ -193,52 +194,75 @@ class Case:
     notes: dict = field(default_factory=dict)
 
 
-def draw(effect: str, rng: np.random.Generator, pd_: PlanData) -> Case:
+#: the domain brief's ranges, "typical (bad)": the bad ones by default; ``typical``
+#: draws the smaller ones a well-kept machine shows (each case is then scored only where
+#: the program excites it above the noise, as always)
+RANGES = {
+    "bad": {"tau_ms": (20, 40), "mismatch_ms": (1.0, 3.0), "play_um": (4, 12),
+            "spike_um": (5, 12), "spike_tau_ms": (15, 40), "stick_um": (1.0, 3.0),
+            "scale_um_per_m": (20, 60), "square_urad": (20, 80), "cyclic_um": (0.8, 2.0),
+            "vib_um_per_m_s2": (1.0, 4.0), "drift_um_per_h": (15, 40),
+            "sigma_ms": (10, 25), "slip_um": (3, 8), "bump_um": (3, 8),
+            "burst_um": (2, 5)},
+    "typical": {"tau_ms": (20, 50), "mismatch_ms": (0.1, 0.5), "play_um": (1, 5),
+                "spike_um": (2, 8), "spike_tau_ms": (10, 60), "stick_um": (0.5, 1.5),
+                "scale_um_per_m": (5, 20), "square_urad": (5, 30), "cyclic_um": (0.3, 0.8),
+                "vib_um_per_m_s2": (0.3, 1.0), "drift_um_per_h": (1, 10),
+                "sigma_ms": (3, 10), "slip_um": (1, 3), "bump_um": (1, 3),
+                "burst_um": (0.5, 2)},
+}
+
+
+def draw(effect: str, rng: np.random.Generator, pd_: PlanData,
+         magnitudes: str = "bad") -> Case:
     lin = [n for n, r in zip(pd_.names, pd_.rotary) if not r]
+    R = RANGES[magnitudes]
     u = lambda a, b: float(rng.uniform(a, b))  # noqa: E731
+    r = lambda key: u(*R[key])  # noqa: E731
     sgn = lambda: float(rng.choice([-1, 1]))  # noqa: E731
     if effect == "servo_lag":
-        return Case(effect, {"tau_ms": u(20, 40)})
+        return Case(effect, {"tau_ms": r("tau_ms")})
     if effect == "servo_mismatch":
         a, b = rng.choice(lin, 2, replace=False)
         return Case(effect, {"axis": str(a), "other": str(b), "tau_ms": u(15, 35),
-                             "mismatch_ms": sgn() * u(1.0, 3.0)})
+                             "mismatch_ms": sgn() * r("mismatch_ms")})
     if effect == "backlash":
-        return Case(effect, {"axis": str(rng.choice(lin)), "play_um": u(4, 12)})
+        return Case(effect, {"axis": str(rng.choice(lin)), "play_um": r("play_um")})
     if effect == "reversal_spike":
-        return Case(effect, {"axis": str(rng.choice(lin)), "height_um": u(5, 12),
-                             "rise_ms": u(2, 6), "tau_ms": u(15, 40)})
+        return Case(effect, {"axis": str(rng.choice(lin)), "height_um": r("spike_um"),
+                             "rise_ms": u(2, 6), "tau_ms": r("spike_tau_ms")})
     if effect == "stick_slip":
-        return Case(effect, {"axis": str(rng.choice(lin)), "amplitude_um": u(1.0, 3.0),
+        return Case(effect, {"axis": str(rng.choice(lin)), "amplitude_um": r("stick_um"),
                              "crawl_mm_per_s": 200 / 60})
     if effect == "scale_mismatch":
-        return Case(effect, {"axis": str(rng.choice(lin)), "um_per_m": sgn() * u(20, 60)})
+        return Case(effect, {"axis": str(rng.choice(lin)),
+                             "um_per_m": sgn() * r("scale_um_per_m")})
     if effect == "squareness":
         return Case(effect, {"pair": str(rng.choice(["XY", "XZ", "YZ"])),
-                             "urad": sgn() * u(20, 80)})
+                             "urad": sgn() * r("square_urad")})
     if effect == "cyclic_error":
         return Case(effect, {"axis": str(rng.choice(lin)), "pitch_mm": u(5, 20),
-                             "amplitude_um": u(0.8, 2.0), "phase": u(0, 2 * math.pi)})
+                             "amplitude_um": r("cyclic_um"), "phase": u(0, 2 * math.pi)})
     if effect == "vibration":
         return Case(effect, {"axis": str(rng.choice(lin)), "frequency_hz": u(20, 120),
-                             "damping": u(0.02, 0.08), "gain_um_per_m_s2": u(1.0, 4.0)})
+                             "damping": u(0.02, 0.08), "gain_um_per_m_s2": r("vib_um_per_m_s2")})
     if effect == "thermal_drift":
         v = rng.normal(size=3)
-        v *= u(15, 40) / np.linalg.norm(v)
+        v *= r("drift_um_per_h") / np.linalg.norm(v)
         return Case(effect, {"um_per_h": [float(x) for x in v]})
     if effect == "contour_smoothing":
-        return Case(effect, {"sigma_ms": u(10, 25)})
+        return Case(effect, {"sigma_ms": r("sigma_ms")})
     if effect == "mount_slip":
         v = rng.normal(size=3)
         return Case(effect, {"at": u(0.3, 0.7), "shift_um": [float(x) for x in
-                                                             v * u(3, 8) / np.linalg.norm(v)]})
+                                                             v * r("slip_um") / np.linalg.norm(v)]})
     if effect in ("guideway_bump", "cubic_straightness"):
         a, b = rng.choice(lin, 2, replace=False)
-        return Case(effect, {"axis": str(a), "across": str(b), "amplitude_um": sgn() * u(3, 8),
+        return Case(effect, {"axis": str(a), "across": str(b), "amplitude_um": sgn() * r("bump_um"),
                              "centre": u(0.2, 0.8), "width_mm": u(3, 10)})
     if effect == "vibration_burst":
         return Case(effect, {"axis": str(rng.choice(lin)), "at": u(0.2, 0.8),
-                             "frequency_hz": u(30, 150), "amplitude_um": u(2, 5),
+                             "frequency_hz": u(30, 150), "amplitude_um": r("burst_um"),
                              "decay_s": u(0.1, 0.3)})
     raise ValueError(effect)
 
