@@ -550,7 +550,8 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     step("alignment")
     base = alignment_columns(plan, ctx)
     if alignment is None:
-        al = align(ctx, expected, t_m, y, extra=base)
+        ok = np.isfinite(y)
+        al = align(ctx, expected, t_m, y, extra=base, noise_um=noise_estimate(y[ok], t_m[ok]))
     elif model is not None:
         # the caller aligned without the geometry; the reading's geometric part holds
         # timing of its own (a golden_small recording aligned without it was 35 ppm off,
@@ -853,7 +854,7 @@ def _realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
               plain.offset_std_s * 1e3, plain.clock_ppm, plain.clock_std_ppm)
     if (plain.rms_um > EXPLAINED * noise or plain.clock_std_ppm > SURE_CLOCK_PPM
             or plain.offset_std_s > SURE_OFFSET_S):
-        plain = align(ctx, expected, t_m, y, extra=extra, seeds=seed, model=X)
+        plain = align(ctx, expected, t_m, y, extra=extra, seeds=seed, model=X, noise_um=noise)
     finder = X
     jump = setup_step(ctx, X, t_m, y, first)
     if jump is None:

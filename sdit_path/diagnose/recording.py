@@ -139,14 +139,14 @@ def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
     expected = expected_reading(plan, ctx, None)
     t_m = np.asarray(trace.t_s, float)
     y = np.asarray(trace.delta_l_um, float)
+    ok = np.isfinite(y)
+    noise = noise_estimate(y[ok], t_m[ok])
     try:
         al = align(ctx, expected, t_m, y, ppm_limit=CLOCK_LIMIT_PPM,
-                   extra=alignment_columns(plan, ctx))
+                   extra=alignment_columns(plan, ctx), noise_um=noise)
     except AlignmentError as exc:
         raise RecordingError(f"{label}: {exc}") from None
     tau = al.program_time(t_m)
-    ok = np.isfinite(y)
-    noise = noise_estimate(y[ok], t_m[ok])
     inside = (tau >= 0.0) & (tau <= float(ctx.t_s[-1]))
     still, dwells, moving_still = stillness(ctx.t_s, plan.trajectory(program).phase, t_m, y,
                                             al, noise)
