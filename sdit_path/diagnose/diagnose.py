@@ -775,12 +775,11 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
     # smoothing leaves the start 17 ms late): the timing is searched with the partner in
     # its place too, and the better fit's timing kept; both then compete again
     for f in findings:
-        pair = next((pair for pair in ALIASED if f.effect in pair), None)
-        partner = None if pair is None else next(iter(pair - {f.effect}))
+        # (a pulse and a stick-slip leave the start alike, and the other competing in
+        # the pass after this one moved a pulse's start 5 ms: only the timing pairs)
+        partner = next((next(iter(pair - {f.effect})) for pair in TIMING_ALIASED
+                        if f.effect in pair), None)
         if partner is None or partner in names:
-            continue
-        if pair not in TIMING_ALIASED:  # both compete again, at this timing
-            names.add(partner)
             continue
         Xa = _model_columns(ctx, lib, expected, [g for g in findings if g is not f])
         other, jump_o = first_al, None
