@@ -401,11 +401,11 @@ def _at_rest_check(ctx: Context, A: np.ndarray, beta: np.ndarray, cov: np.ndarra
         spread = np.maximum(np.diag(cov_r) - np.diag(cov)[cols], 0.0)
         d2 = (beta[cols] - b_r) ** 2
         excess = np.where(np.isfinite(spread) & (d2 > 4.0 * spread), d2 - spread, 0.0)
-    for c, e in zip(cols, excess):
+    for c, b, e in zip(cols, b_r, excess):
         if e > 0.0 and math.isfinite(cov[c, c]):
             cov[c, c] += e
             log.debug("at rest, coefficient %d reads %.4g against %.4g: +- %.3g added",
-                      c, b_r[list(cols).index(c)], beta[c], math.sqrt(e))
+                      c, b, beta[c], math.sqrt(e))
 
 
 def _covariance(A: np.ndarray, resid: np.ndarray, tau: np.ndarray) -> np.ndarray:
@@ -1684,7 +1684,11 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
 #: grow with the feed, one set as a time filter by (v sigma)^2 / (2 R) like the lag - then
 #: only the static nodes tell them apart (a lag arrives late and one-sided, a zero-phase
 #: filter leaves early and arrives late, symmetric about the stop).
-ALIASED = {frozenset({"servo_lag", "contour_smoothing"}):
+#: a lag and a smoothing: the pair whose two readings put the start in different places
+#: (a lag carries its delay into the offset, a zero-phase smoothing does not)
+LAG_SMOOTHING = frozenset({"servo_lag", "contour_smoothing"})
+
+ALIASED = {LAG_SMOOTHING:
            "run the layer again at a second feed (a path-tolerance smoothing does not grow "
            "with the feed, a lag's shrink grows as its square) and compare how the reading "
            "leaves and reaches the static nodes (a lag is one-sided, a zero-phase smoothing "
@@ -1697,10 +1701,9 @@ ALIASED = {frozenset({"servo_lag", "contour_smoothing"}):
            "stick-slip lives where an axis crawls, below about 200 mm/min, and lasts longer "
            "at a lower feed)"}
 
-#: the pairs whose two readings put the start in different places (a lag carries its
-#: delay into the offset, a zero-phase smoothing does not): the timing is searched with
-#: either (a pulse and a stick-slip after a reversal leave the start alike)
-TIMING_ALIASED = (frozenset({"servo_lag", "contour_smoothing"}),)
+#: the aliased pairs whose timing is searched with either (a pulse and a stick-slip after
+#: a reversal leave the start alike)
+TIMING_ALIASED = (LAG_SMOOTHING,)
 
 
 def _merge_aliased(findings: list, contribs: dict, ctx: Context, idx: np.ndarray,
