@@ -173,6 +173,10 @@ class Effect:
     timing_end_implausible: bool = True
     #: ``search`` takes ``fixed=`` (parameters pinned by a profile with the timing)
     searches_with_fixed: bool = False
+    #: the effect's shape may hold the recording's timing (pulses after reversals on a
+    #: trace with little else), and its shape and the start trade with each other: its
+    #: search is repeated with the effect shifted in time (``diagnose._shape_scan``)
+    shape_holds_timing: bool = False
 
     #: how the effect's reading changes when the same path is run again: in the reverse
     #: direction it is multiplied by ``reverse`` (-1: odd in the velocity, +1: even;
@@ -451,6 +455,7 @@ class ReversalSpike(Effect):
     timing_parameter = ("onset_mm_s", onsets_mm_s)
     timing_end_implausible = False
     searches_with_fixed = True
+    shape_holds_timing = True
 
     @staticmethod
     def _since(ctx, j, onset):
