@@ -692,3 +692,43 @@ def test_the_set_up_and_an_effect_are_tried_together_when_neither_passes_alone()
     assert sorted(o[0].name for o in out[0]) == ["bar_length", "servo_mismatch", "setup_offset"]
     assert float(np.sqrt(np.mean(out[2] ** 2))) < 0.3
     assert _joint_setup(trials, [], *args, companions=0) is None
+
+
+def test_a_pulse_whose_shape_holds_the_timing_is_searched_with_its_reading_shifted(
+        plan_dir, setup, tmp_path):
+    """On a trace whose timing is held by pulses after reversals, the pulses' shape and
+    the start trade (a later rise with an earlier start): polished with a shape found
+    at a wrong timing, the start stays in that shape's valley, and the shape searched
+    again there stays too (a 7.4 um pulse rising over 4 ms read as rising over 10 ms,
+    12 ms early).  The pulses searched with their reading shifted find the deeper
+    valley: the start near the truth, the shape off its grid's end."""
+    from types import SimpleNamespace
+
+    from sdit_path.diagnose.align import generic_columns, refine
+    from sdit_path.diagnose.diagnose import (_model_columns, _shape_columns, _shape_scan,
+                                             expected_reading, library, pose_blocks)
+
+    gen = _independent_generator()
+    plan, ctx, _ = setup
+    text, truth = gen.record(gen.load(plan_dir, PROGRAM), gen.Case(
+        "reversal_spike", {"axis": "Z", "height_um": 7.4, "rise_ms": 4.0, "tau_ms": 25.0}), 2)
+    path = tmp_path / "pulse.csv"
+    path.write_text(text)
+    tr = read_trace(path)
+    t_m, y = np.asarray(tr.t_s), np.asarray(tr.delta_l_um)
+    off, ppm = truth["offset_s"] + truth["following_delay_s"], truth["clock_ppm"]
+    expected = expected_reading(plan, ctx, None)
+    lib = library(plan.config.machine, plan.tested_travel())
+    pose = pose_blocks(plan, ctx)
+    pulse = SimpleNamespace(effect="reversal_spike",
+                            nonlinear={"tau_ms": 33.0, "onset_mm_s": 0.1, "rise_ms": 10.0})
+    X = generic_columns(ctx, expected, np.column_stack([
+        *pose, _model_columns(ctx, lib, expected, [pulse])[:, 2:],
+        _shape_columns(ctx, lib, [pulse])]))
+    stuck = refine(ctx, X, t_m, y, off - 0.012, ppm)
+    assert stuck.offset_s - off < -0.008, "no valley: the test shows nothing"
+    taken, _, _ = _shape_scan(ctx, lib, expected, t_m, y, pose, [pulse], stuck, None)
+    assert taken is not None and taken.rms_um < stuck.rms_um
+    assert abs(taken.offset_s - off) < 0.001, (taken, off)
+    # the rise trades with the decay at this feed; it is no longer held at its grid's end
+    assert pulse.nonlinear["rise_ms"] < 9.0 and pulse.nonlinear["onset_mm_s"] < 0.1
