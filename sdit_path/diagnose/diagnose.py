@@ -816,12 +816,9 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
         # carries its delay into the offset, a zero-phase smoothing does not: a smoothing
         # read as a lag left the start 11.8 ms early against a stated 1.1 ms): where the
         # other fits about as well, the timing is known no better than the two differ
-        n_fit = min(int(np.isfinite(y).sum()), _REFINE_SAMPLES)
-        dchi2 = n_fit * (worse.rms_um ** 2 - better.rms_um ** 2) / max(better.rms_um ** 2, 1e-30)
-        if dchi2 <= 9.0:
-            scale = math.sqrt(max(dchi2, 1.0))
-            al = _widened(al, (abs(worse.offset_s - better.offset_s) / scale,
-                               abs(worse.clock_ppm - better.clock_ppm) / scale),
+        spread = _alike_spread(worse, better, min(int(np.isfinite(y).sum()), _REFINE_SAMPLES))
+        if spread is not None:
+            al = _widened(al, spread,
                           f"{partner} in place of {f.effect} (which this recording cannot "
                           f"tell apart) fits about as well with the start "
                           f"{abs(worse.offset_s - better.offset_s) * 1e3:.2f} ms elsewhere")
@@ -950,12 +947,9 @@ def _profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: 
             continue
         b = fits[best]
         for c, a in fits.items():
-            dchi2 = n_fit * (a.rms_um ** 2 - b.rms_um ** 2) / max(b.rms_um ** 2, 1e-30)
-            if dchi2 > 9.0:
-                continue
-            scale = math.sqrt(max(dchi2, 1.0))
-            widen[0] = max(widen[0], abs(a.offset_s - b.offset_s) / scale)
-            widen[1] = max(widen[1], abs(a.clock_ppm - b.clock_ppm) / scale)
+            spread = _alike_spread(a, b, n_fit)
+            if spread is not None:
+                widen = [max(w, v) for w, v in zip(widen, spread)]
         if best != f.nonlinear.get(key):
             f.nonlinear[key] = best
             changed = True
@@ -1049,16 +1043,12 @@ def _shape_scan(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.n
             log.debug("%s shifted %+.1f ms: rms %.5f at %.4f s vs %.5f held at %.4f s",
                       f.effect, d * 1e3, moved.rms_um, moved.offset_s, held.rms_um,
                       held.offset_s)
-            better, worse = (moved, held) if moved.rms_um < held.rms_um else (held, moved)
-            dchi2 = n_fit * (worse.rms_um ** 2 - better.rms_um ** 2) / max(better.rms_um ** 2,
-                                                                             1e-30)
-            if dchi2 <= 9.0:
-                scale = math.sqrt(max(dchi2, 1.0))
-                widen = (max(widen[0], abs(worse.offset_s - better.offset_s) / scale),
-                         max(widen[1], abs(worse.clock_ppm - better.clock_ppm) / scale))
+            spread = _alike_spread(moved, held, n_fit)
+            if spread is not None:
+                widen = (max(widen[0], spread[0]), max(widen[1], spread[1]))
                 why = (f"{f.effect} with its shape searched {d * 1e3:+.0f} ms away fits about "
                        f"as well with the start "
-                       f"{abs(worse.offset_s - better.offset_s) * 1e3:.2f} ms elsewhere")
+                       f"{abs(moved.offset_s - held.offset_s) * 1e3:.2f} ms elsewhere")
             if moved.rms_um >= held.rms_um:
                 f.nonlinear = before
                 break
@@ -1069,6 +1059,21 @@ def _shape_scan(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.n
 #: samples a profiled parameter's timing is polished on, and a full alignment (refine's)
 _PROFILE_SAMPLES = 30_000
 _REFINE_SAMPLES = 120_000
+
+
+def _alike_spread(a: Alignment, b: Alignment, n_fit: int) -> tuple[float, float] | None:
+    """Two fits of the same reading at different timings: where the worse is worse by
+    ``dchi2`` <= 9 (in units of the better's residual variance over ``n_fit`` samples),
+    the standard uncertainty (offset s, clock ppm) their distance implies on a quadratic
+    profile, ``d / sqrt(dchi2)`` (``d`` where the two fit alike); None when they do not
+    fit alike."""
+    better, worse = (a, b) if a.rms_um <= b.rms_um else (b, a)
+    dchi2 = n_fit * (worse.rms_um ** 2 - better.rms_um ** 2) / max(better.rms_um ** 2, 1e-30)
+    if dchi2 > 9.0:
+        return None
+    scale = math.sqrt(max(dchi2, 1.0))
+    return (abs(worse.offset_s - better.offset_s) / scale,
+            abs(worse.clock_ppm - better.clock_ppm) / scale)
 
 
 def _widened(al: Alignment, widen: tuple[float, float], why: str) -> Alignment:
