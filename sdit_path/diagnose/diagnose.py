@@ -1081,11 +1081,16 @@ def _widened(al: Alignment, widen: tuple[float, float], why: str) -> Alignment:
     quadrature, and ``why`` with the amounts among its reasons."""
     if widen[0] <= 0 and widen[1] <= 0:
         return al
-    return dataclasses.replace(
-        al, offset_std_s=float(math.hypot(al.offset_std_s, widen[0])),
-        clock_std_ppm=float(math.hypot(al.clock_std_ppm, widen[1])),
-        widened_by=(*al.widened_by, f"{why} (+- {widen[0] * 1e3:.2f} ms, "
-                                    f"+- {widen[1]:.1f} ppm in quadrature)"))
+    offset_std = float(math.hypot(al.offset_std_s, widen[0]))
+    clock_std = float(math.hypot(al.clock_std_ppm, widen[1]))
+    # A reason is printed only where it moves an uncertainty by 5 % or more: a
+    # widening that small changes no figure a reader acts on.
+    felt = (offset_std > 1.05 * al.offset_std_s or clock_std > 1.05 * al.clock_std_ppm)
+    reasons = ((*al.widened_by, f"{why} (+- {widen[0] * 1e3:.2f} ms, "
+                                f"+- {widen[1]:.1f} ppm in quadrature)")
+               if felt else al.widened_by)
+    return dataclasses.replace(al, offset_std_s=offset_std, clock_std_ppm=clock_std,
+                               widened_by=reasons)
 
 
 class _TrialModel:

@@ -551,6 +551,9 @@ def test_the_report_says_why_the_timing_is_wider_and_prints_each_uncertainty():
     assert wide.offset_std_s == pytest.approx(np.hypot(0.0008, 0.0024))
     assert wide.widened_by == ("read without the crawls, the start moved "
                                "(+- 2.40 ms, +- 3.0 ppm in quadrature)",)
+    # a widening that moves neither uncertainty by 5 % is taken in, but not printed
+    slight = _widened(al, (0.0001, 0.5), "a negligible reason")
+    assert slight.offset_std_s > al.offset_std_s and slight.widened_by == ()
     f = Finding("stick_slip", "saw-tooth", {"stick_um": 8.6, "mean_lag_X_um": 0.89,
                                             "amplitude_X_um": 0.15}, {"stick_um": 8.6},
                 ("mean_lag_X_um", "amplitude_X_um"), 1.0, 0.5, 1.0, 0.5, 20.0,
