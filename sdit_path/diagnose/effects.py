@@ -379,10 +379,24 @@ class ServoMismatch(Effect):
         return np.column_stack(cols) if cols else np.zeros((len(s.idx), 0)), labels
 
 
+#: rest at the start (s) before an axis' first move long enough to read the play's
+#: unknown state there (shorter, its few samples are left to the residual)
+START_REST_S = 0.2
+#: least bar sensitivity to an axis (um per um) at the start for its play's state there
+#: to be read (below it, a column of a few hundredths fits noise with an absurd size)
+START_GAIN = 0.1
+
+
+def _start_rest_s(ctx: Context, j: int) -> float:
+    """How long (s) axis j stands at the start before it has moved 0.5 um."""
+    moved = np.flatnonzero(np.abs(ctx.q[:, j] - ctx.q[0, j]) > 0.5e-3)
+    return float(ctx.t_s[moved[0]] - ctx.t_s[0]) if moved.size else 0.0
+
+
 class Backlash(Effect):
     name, title = "backlash", "lost motion: a step at each reversal of an axis (play operator)"
     reverse, feed_power = -1, 0.0
-    limits = {"play_*": 80.0}
+    limits = {"play_*": 80.0, "slack_at_start_*": 80.0}
     grid_um = (0.5, 1.0, 2.0, 3.0, 4.5, 6.5, 9.0, 13.0, 18.0, 25.0, 35.0, 50.0)
 
     def search(self, ctx, s, r):
@@ -404,7 +418,36 @@ class Backlash(Effect):
                     break
                 b = fitted
             out[f"width_{ctx.axis_names[j]}_um"] = b
+            if (_start_rest_s(ctx, j) >= START_REST_S
+                    and abs(float(ctx.gain[0, j])) >= START_GAIN):
+                out[f"slack_{ctx.axis_names[j]}_um"] = self._slack(ctx, s, j, b, r)
         return out or None
+
+    def _slack(self, ctx, s, j, width_um, r) -> float:
+        """How far (um, 0 to the play) the command moves axis j at the start before the
+        axis follows, iterated like the play: the start column's shape depends on it."""
+        sig = width_um / 2.0  # the middle of the play, with nothing known
+        for _ in range(3):
+            C = np.column_stack([self._col(ctx, s, j, width_um),
+                                 self._start_col(ctx, s, j, sig)])
+            coef = np.linalg.lstsq(C, r, rcond=None)[0]
+            fitted = float(min(max(coef[1], 0.05), width_um))
+            if abs(fitted - sig) < 0.02 * sig:
+                break
+            sig = fitted
+        return sig
+
+    def _start_col(self, ctx, s, j, slack_um):
+        """Bar reading (um per um of slack) of where the play stood at the start, beyond
+        the taken-up state :meth:`_col` assumes there: the axis stands until the command
+        has moved ``slack_um`` from where it began, then follows."""
+        i = s.idx
+        sig = max(slack_um, 0.05) * 1e-3
+        far = np.flatnonzero(np.abs(ctx.q[:, j] - ctx.q[0, j]) >= sig)
+        end = int(far[0]) if far.size else ctx.n
+        moved = np.abs(ctx.q[i, j] - ctx.q[0, j])
+        ramp = np.where(i < end, 1.0 - moved / sig, 0.0)
+        return ctx.gain[i, j] * ctx.direction[0, j] * ramp
 
     def _col(self, ctx, s, j, width_um):
         """Bar reading (um per um of play) of a play operator of ``width_um`` on axis j:
@@ -421,7 +464,19 @@ class Backlash(Effect):
     def columns(self, ctx, s, nl):
         axes = [j for j in linear_axes(ctx) if f"width_{ctx.axis_names[j]}_um" in nl]
         cols = [self._col(ctx, s, j, nl[f"width_{ctx.axis_names[j]}_um"]) for j in axes]
-        return np.column_stack(cols), tuple(f"play_{ctx.axis_names[j]}_um" for j in axes)
+        labels = [f"play_{ctx.axis_names[j]}_um" for j in axes]
+        # Where the play stood when the recording began is not known: the last move
+        # before the program left it anywhere across its width.  :meth:`_col` takes it
+        # up in the first direction; the slack left at the start (how far the command
+        # moves before the axis follows) is a column of its own, read from the rest
+        # before the first move.  (An independent generator starting in the middle of
+        # the play left 3.9 um over the first 2 s, and a reversal spike was invented.)
+        for j in axes:
+            key = f"slack_{ctx.axis_names[j]}_um"
+            if key in nl:
+                cols.append(self._start_col(ctx, s, j, nl[key]))
+                labels.append(f"slack_at_start_{ctx.axis_names[j]}_um")
+        return np.column_stack(cols), tuple(labels)
 
     def parameters(self, coef, labels, nl, ctx):
         return {lab: float(c) for lab, c in zip(labels, coef)}

@@ -735,3 +735,31 @@ def test_a_pulse_whose_shape_holds_the_timing_is_searched_with_its_reading_shift
     assert abs(taken.offset_s - off) < 0.001, (taken, off)
     # the rise trades with the decay at this feed; it is no longer held at its grid's end
     assert pulse.nonlinear["rise_ms"] < 9.0 and pulse.nonlinear["onset_mm_s"] < 0.1
+
+
+def test_a_play_that_stood_anywhere_at_the_start_is_read_and_invents_no_pulse(
+        plan_dir, setup, tmp_path):
+    """Where a play stood when the recording began is not known (the move before the
+    program left it); the independent generator starts it in the middle.  Taken up in
+    the first direction instead, the rest before the first move was misread by half
+    the play, the timing moved and a reversal spike was invented beside the backlash
+    (SDIT5_C 4 of seed 2); here it left 0.61 um unexplained against 0.21 of noise.  The
+    slack at the start is read from that rest: the play and the slack are found, the
+    rest is noise, the timing is covered and no pulse is named."""
+    from sdit_path.diagnose.diagnose import diagnose
+
+    gen = _independent_generator()
+    plan, ctx, _ = setup
+    play = 9.1
+    text, truth = gen.record(gen.load(plan_dir, PROGRAM),
+                             gen.Case("backlash", {"axis": "X", "play_um": play}), 4)
+    path = tmp_path / "backlash.csv"
+    path.write_text(text)
+    d = diagnose(plan, PROGRAM, read_trace(path))
+    names = [f.effect for f in d.findings]
+    assert names[0] == "backlash" and "reversal_spike" not in names, names
+    assert not d.unexplained["significant"], d.unexplained
+    assert abs(d.alignment.offset_s - truth["offset_s"]) < 3 * d.alignment.offset_std_s
+    p = d.findings[0].parameters
+    assert abs(p["play_X_um"] - play) < 0.3
+    assert abs(p["slack_at_start_X_um"] - play / 2) < 0.3
