@@ -58,7 +58,6 @@ def make_plan(directory: Path, feed: float) -> None:
 
 
 def case_spec(i: int, base_seed: int):
-    from sdit_path.diagnose.context import build_context  # noqa: F401
 
     seed = base_seed + i
     rng = np.random.default_rng([seed, 3])
