@@ -58,7 +58,6 @@ def make_plan(directory: Path, feed: float) -> None:
 
 
 def case_spec(i: int, base_seed: int):
-
     seed = base_seed + i
     rng = np.random.default_rng([seed, 3])
     slot = i % 10
