@@ -335,6 +335,7 @@ class ServoMismatch(Effect):
 
     def __init__(self):
         self._cache: dict = {}
+        self._acc_cache: dict = {}
 
     def _axes(self, ctx):
         moving = [j for j in ctx.observable
@@ -385,7 +386,8 @@ class ServoMismatch(Effect):
 
     def columns(self, ctx, s, nl):
         others, ref = self._axes(ctx)
-        v = self.rates(ctx, float(nl.get("common_lag_ms", 0.0)))
+        common = float(nl.get("common_lag_ms", 0.0))
+        v = self.rates(ctx, common)
         # axis error -qdot * lag + lag^2 * qddot (L(d) = 1 - d s + d^2 s^2 ...); um of
         # reading per ms of lag, the second order with the lag the search found (a 1 ms
         # mismatch of a rotary axis left 1e-6 s^2 times its acceleration, and a linear
@@ -395,14 +397,16 @@ class ServoMismatch(Effect):
             rate = v[s.idx, i]
             hint = nl.get(f"{SECOND_ORDER}{ctx.axis_names[j]}", 0.0)
             if hint:
-                rate = rate - hint * 1e-3 * self._rate_derivative(ctx, v, i)[s.idx]
+                rate = rate - hint * 1e-3 * self._rate_derivatives(ctx, common)[s.idx, i]
             cols.append(-(ctx.gain[s.idx, j] * rate))
         labels = tuple(f"lag_{ctx.axis_names[j]}_minus_{ctx.axis_names[ref]}_ms" for j in others)
         return np.column_stack(cols) if cols else np.zeros((len(s.idx), 0)), labels
 
-    @staticmethod
-    def _rate_derivative(ctx, v, i):
-        return np.gradient(v[:, i], ctx.t_s)
+    def _rate_derivatives(self, ctx, common_ms):
+        """``(n, m)`` time derivatives of :meth:`rates` (the second order's accelerations),
+        kept like the rates: every column built again reads them."""
+        return _memo(self._acc_cache, ctx, common_ms,
+                     lambda: np.gradient(self.rates(ctx, common_ms), ctx.t_s, axis=0), digits=6)
 
     def parameters(self, coef, labels, nl, ctx):
         out = {k: float(v) for k, v in nl.items() if not k.startswith(SECOND_ORDER)}
