@@ -69,7 +69,7 @@ def _memo(cache: dict, ctx: Context, value: float, make, digits: int = 9):
     """``make()`` for one context and parameter value, kept in ``cache`` (at most 24
     entries: the grid and the profiled values of one diagnosis).  The context rides
     along with its result so that its id cannot be reused while cached."""
-    key = (id(ctx), round(value, digits))
+    key = (id(ctx), round(value, digits) if isinstance(value, float) else value)
     if key not in cache:
         if len(cache) >= 24:
             cache.pop(next(iter(cache)))
@@ -164,6 +164,12 @@ class Effect:
 
     def physical(self, coef: np.ndarray) -> bool:
         return True
+
+    def from_fit(self, nl: dict, coef: np.ndarray, labels) -> dict | None:
+        """Nonlinear parameters read back from the coefficients fitted with every other
+        finding in (a lag difference that shapes its own second order), or None when
+        none are."""
+        return None
 
     #: a nonlinear parameter that trades with the recording's start (a lag: the alignment
     #: puts it into the offset) and the grid it is profiled on with the timing, or None
@@ -388,25 +394,62 @@ class ServoMismatch(Effect):
         others, ref = self._axes(ctx)
         common = float(nl.get("common_lag_ms", 0.0))
         v = self.rates(ctx, common)
-        # axis error -qdot * lag + lag^2 * qddot (L(d) = 1 - d s + d^2 s^2 ...); um of
-        # reading per ms of lag, the second order with the lag the search found (a 1 ms
-        # mismatch of a rotary axis left 1e-6 s^2 times its acceleration, and a linear
-        # axis moving with it took that up as a mode's deflection)
+        # axis error -qdot * lag to first order; um of reading per ms of lag.  Where the
+        # search has found a lag difference h, the column is the exact error of that
+        # difference divided by it (a secant: fitted h gives the error itself), because
+        # its second order (h^2 times the axis' acceleration, through the common lag as
+        # well) reaches microns at the accelerations: a 1 ms mismatch of a rotary axis
+        # left it for a linear axis to take up as a mode's deflection, and a 2 ms one
+        # at F2000 without its common lag pulled the start 4 ms late
+        hints = tuple(round(float(nl.get(f"{SECOND_ORDER}{ctx.axis_names[j]}", 0.0)), 6)
+                      for j in others)
+        exact = self._secants(ctx, common, hints) if any(hints) else None
         cols = []
         for i, j in enumerate(others):
-            rate = v[s.idx, i]
-            hint = nl.get(f"{SECOND_ORDER}{ctx.axis_names[j]}", 0.0)
-            if hint:
-                rate = rate - hint * 1e-3 * self._rate_derivatives(ctx, common)[s.idx, i]
-            cols.append(-(ctx.gain[s.idx, j] * rate))
+            rate = -v[s.idx, i] if exact is None or not hints[i] else exact[s.idx, i]
+            cols.append(ctx.gain[s.idx, j] * rate)
         labels = tuple(f"lag_{ctx.axis_names[j]}_minus_{ctx.axis_names[ref]}_ms" for j in others)
         return np.column_stack(cols) if cols else np.zeros((len(s.idx), 0)), labels
 
-    def _rate_derivatives(self, ctx, common_ms):
-        """``(n, m)`` time derivatives of :meth:`rates` (the second order's accelerations),
-        kept like the rates: every column built again reads them."""
-        return _memo(self._acc_cache, ctx, common_ms,
-                     lambda: np.gradient(self.rates(ctx, common_ms), ctx.t_s, axis=0), digits=6)
+    def _secants(self, ctx, common_ms, hints):
+        """``(n, m)`` exact axis errors ``(L(tau + h) - L(tau)) q / h`` (axis units per
+        s, read in program time like :meth:`rates`) of lag differences ``hints`` (ms)
+        beside the common lag ``tau``; a zero hint gives a zero column (unused)."""
+        return _memo(self._acc_cache, ctx, (round(common_ms, 6), hints),
+                     lambda: self._lag_differences(ctx, common_ms, hints))
+
+    def _lag_differences(self, ctx, common_ms, hints):
+        from scipy.signal import lfilter
+
+        others, _ = self._axes(ctx)
+        dt = (ctx.t_s[-1] - ctx.t_s[0]) / max(ctx.n - 1, 1)
+        q = ctx.q[:, others].astype(float)
+        q = q - q[0]
+
+        def lag(x, tau_ms):
+            if tau_ms <= 0:
+                return x
+            k = 2.0 * tau_ms * 1e-3 / dt
+            return lfilter([1.0, 1.0], [1.0 + k, 1.0 - k], x)
+
+        out = np.zeros_like(q)
+        for i, h in enumerate(hints):
+            if h:
+                base = lag(q[:, i], common_ms)
+                out[:, i] = (lag(q[:, i], common_ms + h) - base) / (h * 1e-3)
+        shift = int(round(common_ms * 1e-3 / dt))
+        if shift:
+            out = np.concatenate([out[shift:], np.repeat(out[-1:], min(shift, len(out)), axis=0)])
+        return out
+
+    def from_fit(self, nl, coef, labels):
+        # label lag_<axis>_minus_<ref>_ms -> that axis' difference, within the limits
+        lim = self.limits["lag_*"]
+        out = dict(nl)
+        for lab, c in zip(labels, coef):
+            h = float(np.clip(c, -lim, lim))
+            out[f"{SECOND_ORDER}{lab.split('_')[1]}"] = round(h, 4) if abs(h) >= 1e-4 else 0.0
+        return out
 
     def parameters(self, coef, labels, nl, ctx):
         out = {k: float(v) for k, v in nl.items() if not k.startswith(SECOND_ORDER)}
