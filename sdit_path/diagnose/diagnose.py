@@ -1976,8 +1976,18 @@ def _confidence(f: Finding) -> None:
     generalises = ex_ho / ex_tr if ex_tr > 0 else 0.0
     # the README's rule: no mimic, no close runner-up, not ambiguous
     close = bool(f.mimics) or f.runner_up_ratio < 1.1 or bool(f.ambiguous_with)
-    f.confidence = ("high" if generalises >= 0.5 and not close and not f.geometry_doubt else
+    f.confidence = ("high" if generalises >= 0.5 and not close and not f.geometry_doubt
+                    and not _size_unsure(f) else
                     "medium" if generalises >= 0.25 else "low")
+
+
+def _size_unsure(f: Finding) -> bool:
+    """Every size the finding reports (its fitted parameters, not the searched ones)
+    lies within 2 standard uncertainties of zero: a mode's compliance of 0.91 +- 0.91
+    um per m/s^2 is not named with confidence, however much its columns took up."""
+    sizes = [k for k, v in f.parameters.items() if isinstance(v, float)
+             and k not in f.nonlinear and k in f.uncertainty]
+    return bool(sizes) and all(abs(f.parameters[k]) < 2.0 * f.uncertainty[k] for k in sizes)
 
 
 def _windows(tau: np.ndarray, flag: np.ndarray, min_gap_s: float = 0.5, limit: int = 12):

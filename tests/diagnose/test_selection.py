@@ -87,3 +87,21 @@ def test_the_mounting_is_tried_whole_when_neither_part_passes_alone(golden):
     assert abs(mismatch.parameters["lag_Y_minus_X_ms"] - 1.0) < 0.1, mismatch.parameters
     assert abs(next(f for f in d.findings if f.effect == "bar_length").parameters["dL_um"]
                + 6.2) < 0.2
+
+
+def test_a_finding_whose_every_size_is_within_two_sigma_of_zero_is_not_named_with_confidence():
+    from sdit_path.diagnose.diagnose import Finding, _confidence
+
+    def finding(std):
+        f = Finding("vibration", "", {"frequency_hz": 8.0, "compliance_Y_um_per_m_s2": 0.91,
+                                      "peak_Y_um": 0.95},
+                    {"frequency_hz": 8.0, "damping": 0.24, "axis": "Y"}, ("deflection_Y",),
+                    rms_before_um=0.30, rms_after_um=0.28, heldout_rms_before_um=0.30,
+                    heldout_rms_after_um=0.28, delta_bic=900.0)
+        f.uncertainty = {"frequency_hz": 2.3, "compliance_Y_um_per_m_s2": std,
+                         "peak_Y_um": 0.58 * std / 0.91}
+        _confidence(f)
+        return f.confidence
+
+    assert finding(0.03) == "high"
+    assert finding(0.91) == "medium"
