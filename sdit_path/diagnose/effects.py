@@ -559,6 +559,24 @@ class Backlash(Effect):
     def parameters(self, coef, labels, nl, ctx):
         return {lab: float(c) for lab, c in zip(labels, coef)}
 
+    def from_fit(self, nl, coef, labels):
+        # the plays and slacks the columns are shaped with, as fitted with the others in
+        # (a slack searched at 1.0 um fitted 4.6, and the start column's shape held the
+        # timing 6 ms late); a play the fit puts outside the search's range keeps its own
+        fitted = {lab: float(c) for lab, c in zip(labels, coef)}
+        out = dict(nl)
+        for key in nl:
+            if key.startswith("width_"):
+                c = abs(fitted.get(f"play_{key[6:-3]}_um", 0.0))
+                if 0.2 <= c <= 100.0:
+                    out[key] = round(c, 4)
+        for key in nl:
+            if key.startswith("slack_"):
+                top = out.get(f"width_{key[6:-3]}_um", nl[key])
+                c = fitted.get(f"slack_at_start_{key[6:-3]}_um", nl[key])
+                out[key] = round(float(min(max(c, 0.05), top)), 4)
+        return out
+
 
 class ReversalSpike(Effect):
     """A decaying pulse after an axis reversal: friction changes sign with the axis'
