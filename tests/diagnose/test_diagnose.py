@@ -763,6 +763,11 @@ def test_a_play_that_stood_anywhere_at_the_start_is_read_and_invents_no_pulse(
     p = d.findings[0].parameters
     assert abs(p["play_X_um"] - play) < 0.3
     assert abs(p["slack_at_start_X_um"] - play / 2) < 0.3
+    # the columns are shaped with the play and slack reported, not with what a search
+    # found before the others were in (a slack ramp of 1.0 um scaled to 4.6)
+    nl = d.findings[0].nonlinear
+    assert abs(nl["width_X_um"] - p["play_X_um"]) < 0.02 * p["play_X_um"], (nl, p)
+    assert abs(nl["slack_X_um"] - p["slack_at_start_X_um"]) < 0.02 * play, (nl, p)
 
 
 def test_a_mode_rung_below_the_noise_is_found_by_its_deflection(plan_dir, setup):
@@ -794,3 +799,46 @@ def test_a_mode_rung_below_the_noise_is_found_by_its_deflection(plan_dir, setup)
     params = v.parameters(coef, labels, nl, ctx)
     assert abs(params["compliance_Y_um_per_m_s2"] - 0.85) < 0.1, params
     assert v.implausible(params) is None
+
+
+def test_a_servo_mismatch_is_read_to_its_second_order(plan_dir, setup):
+    """A lag difference d beside the common lag tau moves an axis by
+    (L(tau + d) - L(tau)) q: to first order -d times its rate through two lags, and by
+    d^2 times its acceleration beyond (microns at a 2 ms mismatch: SDIT_B 37 at F2000,
+    whose second order, read through no common lag, pulled the start 4 ms late, and a
+    mode's deflection took up the rest).  The column with the difference the fit found
+    is that exact error over d: it reproduces the independent generator's reading of a
+    3 ms mismatch at F1500 to 0.008 um RMS, its timing free to a fraction of a sample;
+    the first order alone leaves 0.044 um."""
+    from sdit_path.diagnose.effects import SECOND_ORDER, Samples, ServoMismatch
+
+    gen = _independent_generator()
+    _, ctx, _ = setup
+    pd_ = gen.load(plan_dir, PROGRAM)
+    tau, d = 17.4, 3.0
+
+    def reading(effect, params):
+        q, extra, _ = gen.apply(gen.Case(effect, params), pd_, np.random.default_rng(0))
+        return np.linalg.norm(gen.ball_in_table(pd_, q) + extra - pd_.pivot, axis=1) * 1e3
+
+    diff = (reading("servo_mismatch", {"axis": "Y", "other": "X", "tau_ms": tau,
+                                       "mismatch_ms": d})
+            - reading("servo_lag", {"tau_ms": tau}))
+    # in program time: the alignment puts the reference axis' lag into the offset
+    target = np.interp(ctx.t_s + tau * 1e-3, pd_.t, diff)
+    s = Samples(np.arange(ctx.n), ctx.t_s)
+    m = ServoMismatch()
+    ok = slice(2000, ctx.n - 2000)
+
+    def left_um(nl):
+        C, labels = m.columns(ctx, s, {"common_lag_ms": tau, **nl})
+        j = labels.index("lag_Y_minus_X_ms")
+        # the column and its time derivative: the timing is free to a fraction of a sample
+        A = np.column_stack([C[:, j], np.gradient(C[:, j], ctx.t_s)])[ok]
+        coef = np.linalg.lstsq(A, target[ok], rcond=None)[0]
+        return float(np.sqrt(np.mean((target[ok] - A @ coef) ** 2))), coef[0]
+
+    first, _ = left_um({})
+    exact, fitted = left_um({f"{SECOND_ORDER}Y": d})
+    assert first > 0.03, (first, left_um({f"{SECOND_ORDER}Y": d}))
+    assert exact < 0.015 and abs(fitted - d) < 0.01, (exact, fitted)
