@@ -105,18 +105,3 @@ def test_a_finding_whose_every_size_is_within_two_sigma_of_zero_is_not_named_wit
 
     assert finding(0.03) == "high"
     assert finding(0.91) == "medium"
-
-
-def test_an_effect_that_completes_the_explanation_needs_chance_beaten_not_the_practical_floor():
-    from sdit_path.diagnose.diagnose import HELDOUT_CHI2_COMPLETE, Options, _heldout_need
-
-    opt, noise = Options(), 0.26
-    C_ho = np.ones((50_000, 2))
-    strict = _heldout_need(opt, 0.0725, noise, C_ho)
-    assert strict >= (opt.min_effect_noise * noise) ** 2  # 0.0083: a 0.047 um effect fails
-    # leaving the held-out residual at the noise, 100 noise variances over the samples
-    done = _heldout_need(opt, 0.0725, noise, C_ho, mse_after=(1.02 * noise) ** 2)
-    assert done == pytest.approx(HELDOUT_CHI2_COMPLETE * noise ** 2 / len(C_ho))
-    assert done < 0.0725 - 0.0703 < strict
-    # leaving more than the noise (something out of the library), the floor holds
-    assert _heldout_need(opt, 0.0725, noise, C_ho, mse_after=(1.2 * noise) ** 2) == strict
