@@ -513,32 +513,14 @@ def _propagated(eff: Effect, coef: np.ndarray, cov: np.ndarray, labels, nl: dict
 HELDOUT_CHI2 = 25.0
 
 
-#: an effect with which the held-out residual is within this factor of the noise
-#: completes the explanation: its practical floor is waived for a held-out drop of
-#: :data:`HELDOUT_CHI2_COMPLETE` noise variances
-COMPLETES = 1.05
-HELDOUT_CHI2_COMPLETE = 100.0
-
-
-def _heldout_need(opt: "Options", mse_ho: float, noise: float, C_ho: np.ndarray,
-                  mse_after: float | None = None) -> float:
+def _heldout_need(opt: "Options", mse_ho: float, noise: float, C_ho: np.ndarray) -> float:
     """The held-out MSE drop an effect acting through ``C_ho`` must bring: its size
     where it acts, both parts in proportion to the share of samples it acts on (a mode
     ringing after each start and stop must explain its own samples, not the whole
     trace), and never less than :data:`HELDOUT_CHI2` noise variances over the held-out
-    samples (the floor a local effect's tiny share would otherwise take to nothing).
-
-    The practical part (``min_effect_noise`` of the noise, RMS) keeps a small effect
-    from taking up part of something out of the library.  Where the effect leaves the
-    held-out residual (``mse_after``) at the noise, nothing is left for it to stand in
-    for: it needs :data:`HELDOUT_CHI2_COMPLETE` noise variances instead (a 14 urad
-    squareness of X and Y on the rotary-table program, 0.047 um RMS once the set-up
-    took its share, brought 2500 of them and was refused)."""
-    floor = HELDOUT_CHI2 * noise ** 2 / max(len(C_ho), 1)
-    if mse_after is not None and mse_after <= (COMPLETES * noise) ** 2:
-        return max(HELDOUT_CHI2_COMPLETE * noise ** 2 / max(len(C_ho), 1), floor)
+    samples (the floor a local effect's tiny share would otherwise take to nothing)."""
     practical = max(opt.min_heldout_gain * mse_ho, (opt.min_effect_noise * noise) ** 2)
-    return max(practical * _support(C_ho), floor)
+    return max(practical * _support(C_ho), HELDOUT_CHI2 * noise ** 2 / max(len(C_ho), 1))
 
 
 def noise_estimate(r: np.ndarray, tau: np.ndarray) -> float:
@@ -1586,7 +1568,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                 log.debug("%s: implausible (%s)", eff.name, why)
                 continue
             mse_ho = float(np.mean(r_ho ** 2))
-            need = _heldout_need(opt, mse_ho, noise, C_ho, float(np.mean(new_ho ** 2)))
+            need = _heldout_need(opt, mse_ho, noise, C_ho)
             if mse_ho - float(np.mean(new_ho ** 2)) < need:
                 log.debug("%s %s: held-out MSE %.4g -> %.4g, needs a drop of %.3g", eff.name, nl, mse_ho,
                           float(np.mean(new_ho ** 2)), need)
@@ -1638,7 +1620,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                 p = cols_tr[i].shape[1]
                 dbic = n_eff * math.log(float(red_tr @ red_tr) / max(rss_full, 1e-30)) - p * math.log(n_eff)
                 mse_ho = float(np.mean(red_ho ** 2))
-                need = _heldout_need(opt, mse_ho, noise, cols_ho[i], float(np.mean(full_ho ** 2)))
+                need = _heldout_need(opt, mse_ho, noise, cols_ho[i])
                 ok = dbic >= opt.bic_margin and mse_ho - float(np.mean(full_ho ** 2)) >= need
                 if not ok and dbic < worst_score:
                     worst, worst_score = i, dbic
@@ -1687,10 +1669,10 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                     C_ho = eff.columns(ctx, S_ho, nl)[0] if extra > 0 else None
                     if extra < 0:
                         ok = dbic > 0 or (rss - rss_full) / len(tr) < _heldout_need(
-                            opt, rss / len(tr), noise, cols_ho[i], rss_full / len(tr))
+                            opt, rss / len(tr), noise, cols_ho[i])
                     elif extra > 0:
                         ok = dbic > 0 and (rss_full - rss) / len(tr) >= _heldout_need(
-                            opt, rss_full / len(tr), noise, C_ho, rss / len(tr))
+                            opt, rss_full / len(tr), noise, C_ho)
                     else:
                         ok = dbic > 0
                     score = (ok, dbic)
@@ -1709,7 +1691,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                     # not lose to the held-out samples' noise
                     mse_new_ho = float(np.mean(new_ho ** 2))
                     if mse_new_ho - mse_full_ho >= _heldout_need(opt, mse_new_ho, noise,
-                                                                 cols_ho[i], mse_full_ho):
+                                                                 cols_ho[i]):
                         log.debug("exchange %s for %s: held-out MSE %.5g -> %.5g", eff.name,
                                   chosen[i][0].name, mse_full_ho, mse_new_ho)
                         continue
