@@ -17,6 +17,7 @@ cruise, decelerate, dwell, reposition) and ``path_speed_mm_per_s``.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -448,8 +449,12 @@ def read_csv_file(path) -> Samples:
     from ..errors import SditError
 
     try:
-        df = pd.read_csv(path, comment="#", dtype={"segment": str, "phase": str},
-                         keep_default_na=False, engine="c")
+        # a number column holding text ("nan" is not read as a value here) is named by
+        # the one-line error below; pandas' warning of mixed types must not print first
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", pd.errors.DtypeWarning)
+            df = pd.read_csv(path, comment="#", dtype={"segment": str, "phase": str},
+                             keep_default_na=False, engine="c")
     except (ValueError, pd.errors.ParserError) as exc:
         raise SditError(f"{path}: not a trajectory file written by sdit-path plan ({exc})") from None
     return _samples(df, list(df.columns), str(path))
