@@ -617,9 +617,6 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     result = explain(names | {"bar_length"}, al, jump, profiled(first.findings))
     kept = {f.effect for f in result.findings}
     dropped = {f.effect for f in first.findings} - kept
-    log.debug("shapes at the first and the settled timing: %s; %s",
-              [(f.effect, f.nonlinear) for f in first.findings],
-              [(f.effect, f.nonlinear) for f in result.findings])
     if kept != names and any(by[f.effect].timing_parameter for f in result.findings):
         # a lag kept without what it shared the first timing with (a contour smoothing
         # found beside it) reads the start afresh: once more with what was kept
@@ -697,10 +694,10 @@ def _reshaped(before: list, after: list) -> list[str]:
     old = {f.effect: f.nonlinear for f in before}
     out = []
     for f in after:
-        a = {k: v for k, v in old.get(f.effect, {}).items() if not k.startswith(SECOND_ORDER)}
-        b = {k: v for k, v in f.nonlinear.items() if not k.startswith(SECOND_ORDER)}
         if f.effect not in old:
             continue
+        a = {k: v for k, v in old[f.effect].items() if not k.startswith(SECOND_ORDER)}
+        b = {k: v for k, v in f.nonlinear.items() if not k.startswith(SECOND_ORDER)}
         if set(a) != set(b) or any(
                 isinstance(a[k], float) and isinstance(b[k], float)
                 and abs(a[k] - b[k]) > RESHAPED_SHARE * max(abs(a[k]), abs(b[k]))
@@ -1768,12 +1765,13 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
         others beside (1.86 ms where the fit gave 1.96, and a mode's deflection took up
         the 0.03 um left at the accelerations).  True when something moved."""
         moved = False
+        beta = None  # the joint fit, made again only after a finding's columns changed
         for _ in range(4):
             changed = False
             for i in keep:
                 eff, nl_old, labels = chosen[i]
-                A = np.column_stack([cols_tr[k] for k in keep])
-                beta = _solve(A, y_tr)
+                if beta is None:
+                    beta = _solve(np.column_stack([cols_tr[k] for k in keep]), y_tr)
                 at = sum(cols_tr[k].shape[1] for k in keep[:keep.index(i)])
                 nl = eff.from_fit(nl_old, beta[at:at + cols_tr[i].shape[1]], labels)
                 if nl is None or all(
@@ -1792,6 +1790,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                 alive.append(C_tr)
                 findings[i].nonlinear, findings[i].labels = nl, labels_new
                 changed = moved = True
+                beta = None
             if not changed:
                 break
         return moved

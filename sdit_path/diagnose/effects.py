@@ -341,7 +341,7 @@ class ServoMismatch(Effect):
 
     def __init__(self):
         self._cache: dict = {}
-        self._acc_cache: dict = {}
+        self._secant_cache: dict = {}
 
     def _axes(self, ctx):
         moving = [j for j in ctx.observable
@@ -415,7 +415,7 @@ class ServoMismatch(Effect):
         """``(n, m)`` exact axis errors ``(L(tau + h) - L(tau)) q / h`` (axis units per
         s, read in program time like :meth:`rates`) of lag differences ``hints`` (ms)
         beside the common lag ``tau``; a zero hint gives a zero column (unused)."""
-        return _memo(self._acc_cache, ctx, (round(common_ms, 6), hints),
+        return _memo(self._secant_cache, ctx, (round(common_ms, 6), hints),
                      lambda: self._lag_differences(ctx, common_ms, hints))
 
     def _lag_differences(self, ctx, common_ms, hints):
