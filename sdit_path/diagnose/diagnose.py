@@ -1954,6 +1954,20 @@ ALIASED = {LAG_SMOOTHING:
            "stick-slip lives where an axis crawls, below about 200 mm/min, and lasts longer "
            "at a lower feed)"}
 
+#: Pairs of position-locked errors a program tells apart only through the bar directions
+#: and positions it covers.  Over the whole sphere a scale error of an axis reads the
+#: square of the bar's direction cosine along it and a squareness the product of two
+#: axes' cosines; a program whose poses couple the two (a 5-axis layer turning the table
+#: under a bar of few directions, a 24 urad XZ squareness read as a scale of X and Z with
+#: the squareness 2 % behind) cannot.  Never merged when both are selected: a machine
+#: has both.
+PROGRAM_ALIASED = {frozenset({"scale_mismatch", "squareness"}):
+                   "measure a program whose bar directions cover each axis and the "
+                   "diagonals between the two axes independently (another layer or "
+                   "track, or the 3-axis sphere with the rotary axes still): a scale error "
+                   "reads the square of the bar's direction cosine along its axis, a "
+                   "squareness the product of the two axes' cosines"}
+
 #: the aliased pairs whose timing is searched with either (a pulse and a stick-slip after
 #: a reversal leave the start alike)
 TIMING_ALIASED = (LAG_SMOOTHING,)
@@ -1992,7 +2006,10 @@ def _merge_aliased(findings: list, contribs: dict, ctx: Context, idx: np.ndarray
 def _pair_ambiguity(findings: list) -> list:
     """One of an aliased pair selected, the other reproducing it (a listed mimic, or a
     runner-up with nearly the same evidence): the recording cannot tell them apart
-    either, and the finding names both."""
+    either, and the finding names both.  One of a pair only some programs tell apart
+    selected, the other its runner-up with nearly the same evidence: this program does
+    not, and the finding names both (a mimic alone does not: the two share part of
+    their signal on every program)."""
     for f in findings:
         if f.ambiguous_with:
             continue
@@ -2003,6 +2020,11 @@ def _pair_ambiguity(findings: list) -> list:
             if any(m["effect"] == other for m in f.mimics) or (
                     f.runner_up == other and f.runner_up_ratio < AMBIGUOUS_RATIO):
                 f.ambiguous_with, f.separate_by = [other], how
+                _confidence(f)
+        for pair, how in PROGRAM_ALIASED.items():
+            if (not f.ambiguous_with and f.effect in pair and f.runner_up in pair
+                    and f.runner_up != f.effect and f.runner_up_ratio < AMBIGUOUS_RATIO):
+                f.ambiguous_with, f.separate_by = [f.runner_up], how
                 _confidence(f)
     return findings
 

@@ -105,3 +105,33 @@ def test_a_finding_whose_every_size_is_within_two_sigma_of_zero_is_not_named_wit
 
     assert finding(0.03) == "high"
     assert finding(0.91) == "medium"
+
+
+def test_a_scale_and_a_squareness_this_program_cannot_tell_apart_are_named_together():
+    """SDIT5_C 8 of the typical blind set (a 24 urad XZ squareness) was read as a scale
+    error of X and Z, the squareness 2 % behind: the finding names both and the program
+    that separates them.  A runner-up well behind, or a pair a real machine has both of,
+    leaves the findings as they are."""
+    from sdit_path.diagnose.diagnose import Finding, _confidence, _merge_aliased
+
+    def finding(effect, runner_up, ratio):
+        f = Finding(effect, "", {"X_um_per_m": -147.0}, {}, ("scale_X",), rms_before_um=0.39,
+                    rms_after_um=0.25, heldout_rms_before_um=0.36, heldout_rms_after_um=0.25,
+                    delta_bic=900.0, runner_up=runner_up, runner_up_ratio=ratio)
+        f.uncertainty = {"X_um_per_m": 6.5}
+        _confidence(f)
+        return f
+
+    close = _merge_aliased([finding("scale_mismatch", "squareness", 1.024)], {}, None,
+                           np.array([]), np.array([]))
+    assert close[0].ambiguous_with == ["squareness"]
+    assert "direction cosine" in close[0].separate_by
+    assert close[0].confidence != "high"
+    behind = _merge_aliased([finding("scale_mismatch", "squareness", 1.6)], {}, None,
+                            np.array([]), np.array([]))
+    assert behind[0].ambiguous_with == [] and behind[0].confidence == "high"
+    both = _merge_aliased([finding("scale_mismatch", "squareness", 3.0),
+                           finding("squareness", "scale_mismatch", 4.0)], {}, None,
+                          np.array([]), np.array([]))
+    assert [f.effect for f in both] == ["scale_mismatch", "squareness"]
+    assert all(not f.ambiguous_with for f in both)
