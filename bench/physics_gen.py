@@ -401,6 +401,15 @@ def timing_bound(pd_: PlanData, reading: np.ndarray, ball: np.ndarray, centring:
     return float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))
 
 
+def _rms_where_acting(visible: np.ndarray) -> float:
+    """RMS where the signal acts (above a tenth of its peak): a local effect is not
+    diluted by the whole trace."""
+    if not np.any(visible):
+        return 0.0
+    acts = np.abs(visible) > 0.1 * np.max(np.abs(visible))
+    return float(np.sqrt(np.mean(visible[acts] ** 2)))
+
+
 def record(pd_: PlanData, case: Case | None, seed: int) -> tuple[str, dict]:
     """CSV text of a measured recording and the truth (never written into the CSV)."""
     rng = np.random.default_rng(seed)
@@ -439,8 +448,13 @@ def record(pd_: PlanData, case: Case | None, seed: int) -> tuple[str, dict]:
     visible = reading_prog - np.interp(pd_.t - common, pd_.t, clean)
     visible = visible - np.median(visible)
     # above the noise where it acts (a local effect is not diluted by the whole trace)
-    acts = np.abs(visible) > 0.1 * np.max(np.abs(visible)) if np.any(visible) else visible > 0
-    visible_rms = float(np.sqrt(np.mean(visible[acts] ** 2))) if acts.any() else 0.0
+    visible_rms = _rms_where_acting(visible)
+    # what no change of the set-up reproduces: every analysis must fit the centring and
+    # the bar's length, and an effect that moves the reading as they do is not seen
+    u = ball_in_table(pd_, pd_.q) - (pd_.pivot + centring)
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    S = np.column_stack([np.ones(len(u)), u])
+    beyond = visible - S @ np.linalg.lstsq(S, visible, rcond=None)[0]
     # timing is read from what the pose dictates (set-up, geometry): a dynamic effect's
     # own timing (when a slip happens, how a lag develops) is not a clock
     pose = reading_prog if case and case.effect in POSE_LOCKED else clean
@@ -448,6 +462,9 @@ def record(pd_: PlanData, case: Case | None, seed: int) -> tuple[str, dict]:
     truth = {"effect": case.effect if case else None, "params": case.params if case else {},
              "excited": bool(case.excited and visible_rms >= noise) if case else False,
              "visible_rms_um": visible_rms,
+             "excited_beyond_setup": bool(case.excited and _rms_where_acting(beyond) >= noise)
+             if case else False,
+             "visible_beyond_setup_rms_um": _rms_where_acting(beyond),
              "offset_s": lead * (1 + ppm * 1e-6), "clock_ppm": ppm,
              "following_delay_s": delay, "gain": gain, "noise_um": noise,
              "centring_um": [float(c * 1e3) for c in centring], "bar_offset_um": dL * 1e3,

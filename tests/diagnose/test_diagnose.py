@@ -613,6 +613,19 @@ def _independent_generator():
     return gen
 
 
+def test_the_blind_set_says_what_a_set_up_change_would_hide(plan_dir):
+    """The generator reports how much of an effect no set-up change reproduces: a
+    mount that gave way before the start is a centring change, seen above the noise
+    but nothing beyond the set-up; a play is seen beyond it."""
+    gen = _independent_generator()
+    pd_ = gen.load(plan_dir, PROGRAM)
+    _, slip = gen.record(pd_, gen.Case("mount_slip", {"at": 0.0, "shift_um": [6.0, -4.0, 3.0]}), 2)
+    assert slip["visible_rms_um"] > 3.0 and slip["excited"]
+    assert slip["visible_beyond_setup_rms_um"] < 0.01 and not slip["excited_beyond_setup"]
+    _, play = gen.record(pd_, gen.Case("backlash", {"axis": "Z", "play_um": 9.6}), 2)
+    assert play["excited_beyond_setup"]
+
+
 def test_a_polished_alignment_that_explains_little_is_checked_against_its_neighbours(
         plan_dir, setup, tmp_path):
     """With reversal-locked shapes in the alignment's model the residual has minima a
