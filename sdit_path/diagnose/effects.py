@@ -448,7 +448,8 @@ class ServoMismatch(Effect):
         out = dict(nl)
         for lab, c in zip(labels, coef):
             h = float(np.clip(c, -lim, lim))
-            out[f"{SECOND_ORDER}{lab.split('_')[1]}"] = round(h, 4) if abs(h) >= 1e-4 else 0.0
+            axis = lab[len("lag_"):lab.index("_minus_")]
+            out[f"{SECOND_ORDER}{axis}"] = round(h, 4) if abs(h) >= 1e-4 else 0.0
         return out
 
     def parameters(self, coef, labels, nl, ctx):
@@ -565,15 +566,19 @@ class Backlash(Effect):
         # timing 6 ms late); a play the fit puts outside the search's range keeps its own
         fitted = {lab: float(c) for lab, c in zip(labels, coef)}
         out = dict(nl)
+        def axis(key, prefix):  # width_<axis>_um -> <axis>
+            return key[len(prefix):-len("_um")]
+
         for key in nl:
             if key.startswith("width_"):
-                c = abs(fitted.get(f"play_{key[6:-3]}_um", 0.0))
+                c = abs(fitted.get(f"play_{axis(key, 'width_')}_um", 0.0))
                 if 0.2 <= c <= 100.0:
                     out[key] = round(c, 4)
         for key in nl:
             if key.startswith("slack_"):
-                top = out.get(f"width_{key[6:-3]}_um", nl[key])
-                c = fitted.get(f"slack_at_start_{key[6:-3]}_um", nl[key])
+                a = axis(key, "slack_")
+                top = out.get(f"width_{a}_um", nl[key])
+                c = fitted.get(f"slack_at_start_{a}_um", nl[key])
                 out[key] = round(float(min(max(c, 0.05), top)), 4)
         return out
 
