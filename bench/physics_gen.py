@@ -454,7 +454,7 @@ def record(pd_: PlanData, case: Case | None, seed: int) -> tuple[str, dict]:
     u = ball_in_table(pd_, pd_.q) - (pd_.pivot + centring)
     u /= np.linalg.norm(u, axis=1)[:, None]
     S = np.column_stack([np.ones(len(u)), u])
-    beyond = visible - S @ np.linalg.lstsq(S, visible, rcond=None)[0]
+    beyond_rms = _rms_where_acting(visible - S @ np.linalg.lstsq(S, visible, rcond=None)[0])
     # timing is read from what the pose dictates (set-up, geometry): a dynamic effect's
     # own timing (when a slip happens, how a lag develops) is not a clock
     pose = reading_prog if case and case.effect in POSE_LOCKED else clean
@@ -462,9 +462,8 @@ def record(pd_: PlanData, case: Case | None, seed: int) -> tuple[str, dict]:
     truth = {"effect": case.effect if case else None, "params": case.params if case else {},
              "excited": bool(case.excited and visible_rms >= noise) if case else False,
              "visible_rms_um": visible_rms,
-             "excited_beyond_setup": bool(case.excited and _rms_where_acting(beyond) >= noise)
-             if case else False,
-             "visible_beyond_setup_rms_um": _rms_where_acting(beyond),
+             "excited_beyond_setup": bool(case.excited and beyond_rms >= noise) if case else False,
+             "visible_beyond_setup_rms_um": beyond_rms,
              "offset_s": lead * (1 + ppm * 1e-6), "clock_ppm": ppm,
              "following_delay_s": delay, "gain": gain, "noise_um": noise,
              "centring_um": [float(c * 1e3) for c in centring], "bar_offset_um": dL * 1e3,

@@ -2022,8 +2022,8 @@ def _pair_ambiguity(findings: list) -> list:
                 f.ambiguous_with, f.separate_by = [other], how
                 _confidence(f)
         for pair, how in PROGRAM_ALIASED.items():
-            if (not f.ambiguous_with and f.effect in pair and f.runner_up in pair
-                    and f.runner_up != f.effect and f.runner_up_ratio < AMBIGUOUS_RATIO):
+            if (not f.ambiguous_with and {f.effect, f.runner_up} == pair
+                    and f.runner_up_ratio < AMBIGUOUS_RATIO):
                 f.ambiguous_with, f.separate_by = [f.runner_up], how
                 _confidence(f)
     return findings
