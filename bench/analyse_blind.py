@@ -34,8 +34,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-from sdit_path.diagnose.context import build_context  # noqa: E402
-from sdit_path.planfiles import load_plan  # noqa: E402
+from sdit_path.reading.context import build_context  # noqa: E402
+from sdit_path.plan.files import load_plan  # noqa: E402
 from sdit_path.sim.perturb import Recording, draw_effect, perturb  # noqa: E402
 
 EFFECTS = ("servo_lag", "servo_mismatch", "backlash", "reversal_spike", "thermal_drift",

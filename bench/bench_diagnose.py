@@ -28,13 +28,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from sdit_path.config import sample_path  # noqa: E402
-from sdit_path.diagnose.context import build_context  # noqa: E402
+from sdit_path.reading.context import build_context  # noqa: E402
 from sdit_path.diagnose.diagnose import diagnose  # noqa: E402
 from sdit_path.diagnose.report import summary_text, to_json  # noqa: E402
 from sdit_path.errormodel.errorset import load_error_set  # noqa: E402
-from sdit_path.planfiles import load_plan  # noqa: E402
-from sdit_path.sim.perturb import draw_effect, draw_recording, measured_csv, perturb  # noqa: E402
-from sdit_path.sim.traceio import read_trace  # noqa: E402
+from sdit_path.plan.files import load_plan  # noqa: E402
+from sdit_path.reading.recording import measured_csv  # noqa: E402
+from sdit_path.sim.perturb import draw_effect, draw_recording, perturb  # noqa: E402
+from sdit_path.reading.recording import read_trace  # noqa: E402
 
 PROGRAM = "SDIT_A"
 

@@ -25,9 +25,9 @@ from sdit_path.errormodel.errorset import ErrorSet
 from sdit_path.errormodel.model import ModelOptions, build_model, prior_scale
 from sdit_path.identify.identify import _schur, experiment_gram, identify
 from sdit_path.output import write_tree
-from sdit_path.pipeline import plan
-from sdit_path.planfiles import load_plan
-from sdit_path.report.manifest import plan_directory_files
+from sdit_path.plan.pipeline import plan
+from sdit_path.plan.files import load_plan
+from sdit_path.plan.manifest import plan_directory_files
 from sdit_path.sim.simulate import simulate_trace
 
 NOISE_UM = 0.2

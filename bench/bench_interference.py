@@ -25,7 +25,7 @@ from sdit_path.interference.check import run_clearances
 from sdit_path.interference.scene import Scene
 from sdit_path.machine.kinematics import Kinematics
 from sdit_path.machine.poses import layer_poses
-from sdit_path.pipeline import plan
+from sdit_path.plan.pipeline import plan
 
 TARGET = 20000
 

@@ -23,7 +23,7 @@ from sdit_path.interference.scene import Scene
 from sdit_path.machine.kinematics import Kinematics
 from sdit_path.nc.chords import chords_for_range
 from sdit_path.nc.words import count_blocks
-from sdit_path.pipeline import check_layer, post_layer
+from sdit_path.plan.pipeline import check_layer, post_layer
 
 
 def main(argv: list[str]) -> None:

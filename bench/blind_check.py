@@ -88,8 +88,8 @@ def run_case(job):
     plan_dir, program, k, seed, magnitudes = job
     from sdit_path.diagnose.diagnose import diagnose
     from sdit_path.diagnose.report import to_json
-    from sdit_path.planfiles import load_plan
-    from sdit_path.sim.traceio import read_trace
+    from sdit_path.plan.files import load_plan
+    from sdit_path.reading.recording import read_trace
 
     pd_ = gen.load(plan_dir, program)
     effect = KINDS[k % len(KINDS)]

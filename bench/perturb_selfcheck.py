@@ -38,8 +38,9 @@ sys.path.insert(0, str(ROOT))
 
 from sdit_path.config import sample_path  # noqa: E402
 from sdit_path.errormodel.errorset import load_error_set  # noqa: E402
-from sdit_path.planfiles import load_plan  # noqa: E402
-from sdit_path.sim.perturb import IN_LIBRARY, OUTSIDE, draw_effect, draw_recording, measured_csv, perturb  # noqa: E402
+from sdit_path.plan.files import load_plan  # noqa: E402
+from sdit_path.reading.recording import measured_csv  # noqa: E402
+from sdit_path.sim.perturb import IN_LIBRARY, OUTSIDE, draw_effect, draw_recording, perturb  # noqa: E402
 
 LAYERS = ("SDIT_A", "SDIT_B", "SDIT_C", "SDIT_D", "SDIT_E")
 MODEL = "paper_table2"
@@ -84,10 +85,10 @@ _CTX: dict = {}
 
 def run_case(args):
     i, base_seed, plan_dir, tmp = args
-    from sdit_path.diagnose.context import build_context
+    from sdit_path.reading.context import build_context
     from sdit_path.diagnose.diagnose import diagnose
     from sdit_path.diagnose.report import to_json
-    from sdit_path.sim.traceio import read_trace
+    from sdit_path.reading.recording import read_trace
 
     plan = load_plan(plan_dir)
     model = load_error_set(MODEL)

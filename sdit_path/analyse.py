@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from .diagnose.context import Context, build_context
+from .reading.context import Context, build_context
 from .diagnose.diagnose import Diagnosis, diagnose, dynamic_columns, noise_estimate
 from .diagnose.diagnose import Options as DiagnosisOptions
 from .diagnose.effects import Samples, library
@@ -32,8 +32,8 @@ from .errors import ConfigError, RecordingError
 from .heap import reusing_freed_memory
 from .identify.identify import ExtraGroup, first_gram, identification_model, identify
 from .parallel import each
-from .planfiles import PlanFiles
-from .sim.simulate import Trace
+from .plan.files import PlanFiles
+from .reading.trace import Trace
 
 #: findings that are the set-up, or geometry the identification models itself
 _NOT_NUISANCE = ("setup_offset", "bar_length", "geometry_beyond_library")

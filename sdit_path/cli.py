@@ -98,12 +98,12 @@ def plan_command(config: str | None, out_dir: str, force: bool, skip_infeasible:
                  quiet: bool) -> None:
     """Plan CONFIG (default: the bundled 3-axis sample) and write one program per layer
     and controller, plus plan.json."""
-    from .config import load_config
+    from .plan.configure import load_config
     from .nc.registry import get_postprocessor
     from .nc.words import count_blocks
     from .output import check_output, write_tree
-    from .pipeline import plan, step_count
-    from .report.manifest import plan_directory_files
+    from .plan.pipeline import plan, step_count
+    from .plan.manifest import plan_directory_files
 
     try:
         cfg = load_config(config)
@@ -157,11 +157,11 @@ def preview_command(config: str | None, out_dir: str, feed: float | None, force:
     acceleration and jerk against their limits, and the hemisphere coloured by speed."""
     import dataclasses
 
-    from .config import load_config
+    from .plan.configure import load_config
     from .errors import ConfigError
     from .output import check_output, write_tree
-    from .pipeline import plan, step_count
-    from .report.preview import preview_files
+    from .plan.pipeline import plan, step_count
+    from .reports.preview import preview_files
 
     try:
         cfg = load_config(config)
@@ -222,8 +222,9 @@ def simulate_command(plan_dir, program, errors_file, centring_um, bar_offset_um,
     """Simulate the ballbar trace of PROGRAM for an error set."""
     from .errormodel.errorset import load_error_set
     from .output import write_file
-    from .planfiles import load_plan
-    from .sim.simulate import simulate_trace, trace_csv
+    from .plan.files import load_plan
+    from .reading.recording import trace_csv
+    from .sim.simulate import simulate_trace
 
     try:
         _in_range("--noise-um", noise_um, 0, 1000)
@@ -280,8 +281,8 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
     from .identify.identify import identify
     from .identify.summary import summary_text
     from .output import write_file
-    from .planfiles import load_plan
-    from .sim.traceio import read_trace
+    from .plan.files import load_plan
+    from .reading.recording import read_trace
 
     try:
         if len(plan_dirs) not in (1, len(traces)):
@@ -362,8 +363,8 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
     from .errors import ConfigError
     from .output import check_output, write_tree
     from .parallel import default_jobs
-    from .planfiles import load_plan
-    from .sim.traceio import read_trace
+    from .plan.files import load_plan
+    from .reading.recording import read_trace
 
     try:
         plan = load_plan(plan_dir)
@@ -429,10 +430,10 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, jobs, quie
     from .errors import ConfigError
     from .output import check_output, write_tree
     from .parallel import default_jobs
-    from .pipeline import plan
-    from .planfiles import load_plan
+    from .plan.pipeline import plan
+    from .plan.files import load_plan
     from .replan import analysis_reasons, pictures, replan, report_json, report_text
-    from .report.manifest import plan_directory_files
+    from .plan.manifest import plan_directory_files
 
     try:
         old = load_plan(plan_dir)
@@ -498,13 +499,14 @@ def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead
     import json
     from pathlib import Path
 
-    from .diagnose.context import build_context
+    from .reading.context import build_context
     from .errormodel.errorset import load_error_set
     from .errors import ConfigError, OutputError
     from .output import write_file
-    from .planfiles import load_plan
+    from .plan.files import load_plan
+    from .reading.recording import measured_csv
     from .sim.perturb import (Hidden, Recording, draw_case, draw_effect, draw_recording,
-                              measured_csv, parse_effect, perturb, truth_json)
+                              parse_effect, perturb, truth_json)
 
     try:
         for name, v, lo, hi in (("--noise-um", noise_um, 0, 100), ("--lead-s", lead_s, 0, 600),
@@ -566,15 +568,15 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
     from pathlib import Path
 
     from .diagnose.align import AlignmentError
-    from .diagnose.context import build_context
+    from .reading.context import build_context
     from .diagnose.diagnose import diagnose
     from .diagnose.recording import align_recording
     from .diagnose.report import pictures, summary_text, to_json
     from .errormodel.errorset import load_error_set
     from .errors import ConfigError
     from .output import write_file
-    from .planfiles import load_plan
-    from .sim.traceio import read_trace
+    from .plan.files import load_plan
+    from .reading.recording import read_trace
 
     try:
         plan = load_plan(plan_dir)

@@ -42,7 +42,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .config import TILT_OFFSET_MAX_DEG, Config, SectorCurve, parse_config
+from .config import TILT_OFFSET_MAX_DEG, Config, SectorCurve
+from .plan.configure import parse_config
 from .errormodel.model import ModelOptions, build_model
 from .errors import ConfigError
 from .geometry.hemisphere import partition
@@ -51,9 +52,9 @@ from .identify.identify import STRUCTURAL, experiment_gram
 from .interference.scene import Scene
 from .machine.kinematics import Kinematics
 from .parallel import each
-from .pipeline import check_layer
-from .planfiles import PlanFiles
-from .sim.simulate import axis_values_rad
+from .plan.pipeline import check_layer
+from .plan.files import PlanFiles
+from .timing.trajectory import axis_values_rad
 from .timing.trajectory import Samples, Timer, sample
 
 
@@ -175,14 +176,17 @@ def evaluate_layer(cfg: Config, layer_name: str, travel: dict, kin: Kinematics,
     timer = Timer(cfg, kin)
     timed = timer.time_layer(path)
     s = sample(timed, timer, cfg.timing.sample_rate_hz)
-    lag = _motion_values(cfg, kin, s, values)
+    feeds = {p.id: run.feed_mm_per_min for run in path.runs for p in run.pieces}
+    lag = _motion_values(cfg, kin, s, values, feeds)
     info, S, X = _design(cfg, s, travel, layer_name, lag)
     return LayerEval(layer_name, True, bad, float(timed.duration_s), values, info, S, s, X)
 
 
-def _motion_values(cfg: Config, kin: Kinematics, s: Samples, values: dict) -> np.ndarray:
-    """Travel margin, speed dip, acceleration and servo sensitivity per segment; returns
-    the reading change of a 1 ms lag of each axis at every sample ``(n, axes)``, um."""
+def _motion_values(cfg: Config, kin: Kinematics, s: Samples, values: dict,
+                   feeds_mm_per_min: dict[str, float]) -> np.ndarray:
+    """Travel margin, speed dip, acceleration and servo sensitivity per segment
+    (``feeds_mm_per_min``: each segment's programmed feed, its run's); returns the
+    reading change of a 1 ms lag of each axis at every sample ``(n, axes)``, um."""
     q = axis_values_rad(s, kin)
     dt = float(s.t_s[1] - s.t_s[0]) if len(s.t_s) > 1 else 1e-3
     qd = np.gradient(q, dt, axis=0)
@@ -232,7 +236,7 @@ def _motion_values(cfg: Config, kin: Kinematics, s: Samples, values: dict) -> np
         if not m.any():
             continue
         c = m & cruise
-        own = cfg.test.curve.feed_for(sid, cfg.test.feed_mm_per_min) / 60.0  # its sector's
+        own = feeds_mm_per_min[sid] / 60.0  # its run's, its sector's
         v["min_speed_ratio"] = float(s.speed_mm_per_s[c].min() / own) if c.any() else 1.0
         v["acceleration_ratio"] = float(np.max(np.abs(qdd[m]) / acc_lim))
         v["servo_um_per_ms"] = float(np.sqrt(np.mean(np.max(sens[m], axis=1) ** 2)))

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from sdit_path.config import load_config, parse_config, sample_path
-from sdit_path.pipeline import plan
+from sdit_path.plan.pipeline import plan
 
 DATA = Path(__file__).parent / "data"
 GOLDEN = Path(__file__).parent / "golden"

@@ -2,7 +2,7 @@ from __future__ import annotations
 
 import pytest
 
-from sdit_path.config import load_config, parse_config
+from sdit_path.plan.configure import load_config, parse_config
 from sdit_path.errors import ConfigError
 
 from conftest import edit

@@ -26,8 +26,8 @@ import pytest
 from sdit_path.config import parse_config, sample_path
 from sdit_path.errors import ConfigError, SditError
 from sdit_path.output import MARKER, write_file, write_tree
-from sdit_path.planfiles import load_plan
-from sdit_path.sim.traceio import read_trace
+from sdit_path.plan.files import load_plan
+from sdit_path.reading.recording import read_trace
 
 from conftest import DATA, edit, have_linuxcnc
 

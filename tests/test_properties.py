@@ -8,7 +8,7 @@ import pytest
 
 from sdit_path.nc.chords import chord_deviation
 from sdit_path.nc.readback import read_polyline, read_sinumerik
-from sdit_path.pipeline import plan
+from sdit_path.plan.pipeline import plan
 from sdit_path.config import parse_config, sample_path
 
 from conftest import edit

@@ -23,7 +23,7 @@ import scipy.fft as sfft
 from numpy.lib.stride_tricks import sliding_window_view
 
 from ..errors import RecordingError
-from .context import Context
+from ..reading.context import Context
 
 
 class AlignmentError(RecordingError):
@@ -219,7 +219,7 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     return best
 
 
-def _at(t: np.ndarray, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
+def sample_at(t: np.ndarray, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
     """Rows of ``X`` (on the uniform grid ``t``) linearly interpolated at ``tau``."""
     dt = (t[-1] - t[0]) / max(len(t) - 1, 1)
     x = np.clip((tau - t[0]) / dt, 0.0, len(t) - 1.000001)
@@ -244,7 +244,7 @@ def _pinv_gram(G: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
     return (V[:, keep] / w[keep]) @ V[:, keep].T / np.outer(d, d)
 
 
-def _lsq(A: np.ndarray, y: np.ndarray) -> np.ndarray:
+def lsq(A: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Least squares through the normal equations (rank-revealing): the same answer as
     ``lstsq`` for the well-scaled, tall problems here, several times faster."""
     return _pinv_gram(A.T @ A) @ (A.T @ y)
@@ -252,8 +252,8 @@ def _lsq(A: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def _fit_rms(X, t, tm, yy, offset_s, k):
     tau = np.clip((tm - offset_s) / (1 + k), t[0], t[-1])
-    Xs = _at(t, X, tau)
-    beta = _lsq(Xs, yy)
+    Xs = sample_at(t, X, tau)
+    beta = lsq(Xs, yy)
     r = yy - Xs @ beta
     return float(np.sqrt(np.mean(r * r))), tau, Xs, beta
 
@@ -298,7 +298,7 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
     rms, tau, Xs, beta = _fit_rms(X, t, tm, yy, offset_s, k)
     for _ in range(iterations):
         f = X @ beta
-        fd = _at(t, np.gradient(f, t), tau)
+        fd = sample_at(t, np.gradient(f, t), tau)
         raw = (tm - offset_s) / (1 + k)
         inside = (raw > t[0]) & (raw < T)
         # d tau / d offset = -1/(1+k); d tau / d k = -tau/(1+k)
@@ -352,7 +352,7 @@ def _at_bound(t: np.ndarray, f: np.ndarray, tau: np.ndarray, std: tuple[float, f
     that of a uniform spread over twice the range (the estimate at one edge, the truth
     possibly at the other), and the offset, which the data tie to the rate at the
     program time where the timing information lies (its centroid), inherits it."""
-    fd = _at(t, np.gradient(f, t), tau)
+    fd = sample_at(t, np.gradient(f, t), tau)
     w = fd * fd
     tau_c = float(np.sum(w * tau) / max(float(np.sum(w)), 1e-300))
     clk = 2 * ppm_limit / np.sqrt(3.0)
@@ -367,8 +367,8 @@ def _window_shift(tw: np.ndarray, t: np.ndarray, X: np.ndarray, yw: np.ndarray,
     flat or the best shift lies at the edge of the search)."""
     rss = np.empty(len(shifts))
     for i, d in enumerate(shifts):
-        A = _at(t, X, tw - d)
-        beta = _lsq(A, yw)
+        A = sample_at(t, X, tw - d)
+        beta = lsq(A, yw)
         r = yw - A @ beta
         rss[i] = float(r @ r)
     j = int(np.argmin(rss))
@@ -400,7 +400,7 @@ def _consistency(X: np.ndarray, t: np.ndarray, tm: np.ndarray, yy: np.ndarray,
     # each stretch shifts the whole model as fitted (one scale): refitting every column
     # on every stretch would throw away what the stretches share, and the stretches'
     # scatter would then state the timing ten to a hundred times worse than it is
-    f = (X @ _lsq(_at(t, X, np.clip(tau, t[0], t[-1])), yy))[:, None]
+    f = (X @ lsq(sample_at(t, X, np.clip(tau, t[0], t[-1])), yy))[:, None]
     edges = np.linspace(t[0], t[-1], windows + 1)
     grid = np.arange(-half_s, half_s + step_s / 2, step_s)
     c, d, sd = [], [], []
@@ -452,7 +452,7 @@ def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     ``generic_columns(ctx, expected_um, extra)`` if the caller has it already; without
     ``search``, only the seeds are polished.  With ``noise_um`` (the recording's
     noise), a searched result that leaves more than ``LOCAL_SCAN_EXPLAINED`` times it
-    is checked against its neighbourhood (:func:`_local_scan`)."""
+    is checked against its neighbourhood (:func:`local_scan`)."""
     X = generic_columns(ctx, expected_um, extra) if model is None else model
     check_span(t_m[-1] - t_m[0], ctx.duration_s, ppm_limit)
     valid = int(np.isfinite(y).sum())
@@ -478,7 +478,7 @@ def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
         found = [(best.offset_s, best.clock_ppm)]
     al = refine(ctx, X, t_m, y, *found[0], ppm_limit)
     if search and noise_um is not None and al.rms_um > LOCAL_SCAN_EXPLAINED * noise_um:
-        al = _local_scan(ctx, X, t_m, y, al, ppm_limit)
+        al = local_scan(ctx, X, t_m, y, al, ppm_limit)
     return al
 
 
@@ -487,7 +487,7 @@ def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
 LOCAL_SCAN_EXPLAINED = 1.15
 
 
-def _local_scan(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, al: Alignment,
+def local_scan(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, al: Alignment,
                 ppm_limit: float, half_s: float = 0.032, step_s: float = 0.004,
                 half_ppm: float = 60.0, step_ppm: float = 20.0, samples: int = 5000
                 ) -> Alignment:
@@ -530,7 +530,7 @@ class SetupStep:
 
     def reading_um(self, ctx: Context, al: Alignment, t_m: np.ndarray) -> np.ndarray:
         """What the step adds to the reading at measured times ``t_m``."""
-        U = _at(ctx.t_s, ctx.u, np.clip(al.program_time(t_m), ctx.t_s[0], ctx.t_s[-1]))
+        U = sample_at(ctx.t_s, ctx.u, np.clip(al.program_time(t_m), ctx.t_s[0], ctx.t_s[-1]))
         return -(U @ np.asarray(self.shift_um)) * (np.asarray(t_m) >= self.t_s)
 
 
@@ -554,18 +554,18 @@ def setup_step(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, al: 
         return None
     ok = ok[:: max(1, len(ok) // max_samples)]
     tau, yy, tm = tau[ok], y[ok], t_m[ok]
-    A = _at(t, X, tau)
-    U = _at(t, ctx.u, tau)
+    A = sample_at(t, X, tau)
+    U = sample_at(t, ctx.u, tau)
 
     def fit(C):
         M = np.column_stack([A, C])
-        beta = _lsq(M, yy)
+        beta = lsq(M, yy)
         e = yy - M @ beta
         return float(e @ e), beta[-3:]
 
     if at_s is not None:
         return SetupStep(float(at_s), tuple(-float(v) for v in fit(U * (tm >= at_s)[:, None])[1]))
-    r = yy - A @ _lsq(A, yy)
+    r = yy - A @ lsq(A, yy)
     # every step time at once: sums over the samples after it (tau is increasing), the
     # constant set-up (u) projected out
     S = np.cumsum((U[:, :, None] * U[:, None, :])[::-1], axis=0)[::-1]

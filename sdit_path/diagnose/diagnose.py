@@ -23,13 +23,14 @@ import numpy as np
 from ..errormodel.chain import actual_ball
 from ..errormodel.errorset import ErrorSet
 from ..machine.kinematics import Kinematics
-from ..planfiles import PlanFiles
-from ..sim.simulate import Trace, error_values
-from .align import CLOCK_LIMIT_PPM, Alignment, SetupStep, _at, _local_scan, _lsq, align, \
+from ..plan.files import PlanFiles
+from ..reading.trace import Trace
+from ..sim.simulate import error_values
+from .align import CLOCK_LIMIT_PPM, Alignment, SetupStep, sample_at, local_scan, lsq, align, \
     axis_acceleration_readings, generic_columns, refine, setup_step
-from .context import Context, build_context, strided
+from ..reading.context import Context, build_context, strided
 from .effects import GEOMETRIC, PRIOR_ORDER, Backlash, Effect, GeometryBeyond, LateralPlay, \
-    SECOND_ORDER, ReversalSpike, Samples, ScaleMismatch, ServoMismatch, Squareness, _proj_gain, \
+    SECOND_ORDER, ReversalSpike, Samples, ScaleMismatch, ServoMismatch, Squareness, projection_gain, \
     fitted_beside, library, linear_axes
 
 log = logging.getLogger(__name__)
@@ -37,7 +38,7 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True, slots=True)
 class Options:
-    """``heldout_every``: one in n stretches of each kind is held out (``_held_stretches``);
+    """``heldout_every``: one in n stretches of each kind is held out (``held_stretches``);
     ``max_fit_samples``: samples used for fitting (a seeded choice of 0.5 s blocks);
     ``min_heldout_gain``: relative held-out MSE drop a new effect must bring;
     (the noise threshold below scales with the share of samples the effect acts on)
@@ -113,15 +114,15 @@ def expected_reading(plan: PlanFiles, ctx: Context, model: ErrorSet | None) -> n
     return np.interp(np.arange(ctx.n), k, val)
 
 
-def _units(ctx: Context) -> np.ndarray:
+def stretch_numbers(ctx: Context) -> np.ndarray:
     """Stretch number of every grid sample: a new stretch at every label change."""
     seg = ctx.segment
     change = np.r_[True, seg[1:] != seg[:-1]]
     return np.cumsum(change) - 1
 
 
-def _held_stretches(ctx: Context, every: int) -> np.ndarray:
-    """Which stretches (numbered as ``_units``) are held out: one in ``every`` of each
+def held_stretches(ctx: Context, every: int) -> np.ndarray:
+    """Which stretches (numbered as ``stretch_numbers``) are held out: one in ``every`` of each
     kind, a kind being the dwells, the transfers, or a sub-segment's place in its sector
     on one pass (``D3-2`` on its first run, on its second ...).  Taking every n-th stretch
     of the program instead locks to the program's period: with two sub-segments a sector,
@@ -129,7 +130,7 @@ def _held_stretches(ctx: Context, every: int) -> np.ndarray:
     that a play reversing with the motion cannot be told from the set-up.  The kinds are
     staggered so that one sector is not held out whole."""
     seg = ctx.segment
-    starts = np.flatnonzero(np.diff(_units(ctx), prepend=-1))
+    starts = np.flatnonzero(np.diff(stretch_numbers(ctx), prepend=-1))
     held = np.zeros(len(starts), dtype=bool)
     runs: dict[str, int] = {}
     count: dict[tuple, int] = {}
@@ -158,7 +159,7 @@ def _balance_reversals(ctx: Context, held: np.ndarray, every: int) -> np.ndarray
     effect that acts only there (a 10 um reversal spike) was invisible to the fit.
     The rarest axis first; a stretch balanced for one axis is not moved for another."""
     held = held.copy()
-    units = _units(ctx)
+    units = stretch_numbers(ctx)
     events = []
     for j in linear_axes(ctx):
         t_rev = np.asarray(ctx.reversal_times[j], float)
@@ -183,7 +184,7 @@ def _balance_reversals(ctx: Context, held: np.ndarray, every: int) -> np.ndarray
     return held
 
 
-def _block_choice(candidates: np.ndarray, quota: int, rng, block: int = 500) -> np.ndarray:
+def block_choice(candidates: np.ndarray, quota: int, rng, block: int = 500) -> np.ndarray:
     if len(candidates) <= quota:
         return candidates
     nb = int(math.ceil(len(candidates) / block))
@@ -192,7 +193,7 @@ def _block_choice(candidates: np.ndarray, quota: int, rng, block: int = 500) -> 
     return candidates[out[out < len(candidates)]]
 
 
-def _support(C: np.ndarray) -> float:
+def support(C: np.ndarray) -> float:
     """Share of samples an effect acts on (any column above 10 % of its peak, where
     the effect is more than its own tail): a local effect (stick-slip near reversals, a
     mode rung by the starts and stops) must explain its own samples, not the whole
@@ -206,7 +207,7 @@ def _support(C: np.ndarray) -> float:
     return float(active.mean())
 
 
-def _rho(r: np.ndarray, tau: np.ndarray) -> float:
+def serial_correlation(r: np.ndarray, tau: np.ndarray) -> float:
     adj = np.diff(tau) < 0.0015
     if adj.sum() < 100:
         return 0.0
@@ -216,16 +217,16 @@ def _rho(r: np.ndarray, tau: np.ndarray) -> float:
     return float(np.clip((a @ b) / den, 0.0, 0.9999)) if den > 0 else 0.0
 
 
-def _blind(A: np.ndarray) -> np.ndarray:
+def unseen_columns(A: np.ndarray) -> np.ndarray:
     """Columns the bar cannot see (below 1e-8 um per unit everywhere)."""
     return np.sqrt((A * A).sum(0)) < 1e-8 * math.sqrt(max(len(A), 1))
 
 
-def _solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:
+def solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Least squares with column scaling."""
     scale = np.sqrt((A * A).sum(0))
     # a column the bar cannot see stays at zero
-    blind = _blind(A)
+    blind = unseen_columns(A)
     scale[blind] = np.inf
     # truncated at 1e-5 of the largest singular value: a combination of parameters
     # the data cannot tell apart gets the minimum-norm value, not 1e8
@@ -240,16 +241,16 @@ def _solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:
 GAIN_STD = 0.003 / math.sqrt(3.0)
 
 
-def _residual_variance(resid: np.ndarray, tau: np.ndarray) -> float:
+def residual_variance(resid: np.ndarray, tau: np.ndarray) -> float:
     """The variance one sample's residual stands for: its mean square times
     (1 + rho) / (1 - rho) for its correlation from sample to sample."""
     if not len(resid):
         return 0.0
-    rho = _rho(resid, tau)
+    rho = serial_correlation(resid, tau)
     return float(np.mean(resid * resid)) * (1.0 + rho) / (1.0 - rho)
 
 
-def _searched_std(eff: Effect, nl: dict, keys: list, labels, ctx: Context, S: Samples,
+def searched_std(eff: Effect, nl: dict, keys: list, labels, ctx: Context, S: Samples,
                   others: np.ndarray, y: np.ndarray, var: float
                   ) -> tuple[dict, list, dict]:
     """Standard uncertainties of parameters a finding's search set on a grid (a
@@ -257,7 +258,7 @@ def _searched_std(eff: Effect, nl: dict, keys: list, labels, ctx: Context, S: Sa
     joint fit's residual sum of squares as that parameter alone moves (every linear
     coefficient, the other findings' included, fitted again; the finding's other
     searched parameters held): a change of ``var`` (the residual's variance per
-    sample, :func:`_residual_variance`) is one standard uncertainty.  The step is sized
+    sample, :func:`residual_variance`) is one standard uncertainty.  The step is sized
     until the change is between 0.3 and 300 of those (the sum is a parabola there, not
     yet the rounding of the sums); the distance from the value on the grid to the
     parabola's bottom is added in quadrature.  Beyond the parabola the fit is looked
@@ -284,7 +285,7 @@ def _searched_std(eff: Effect, nl: dict, keys: list, labels, ctx: Context, S: Sa
     def fit(nl2) -> tuple[float, dict]:
         C, _ = eff.columns(ctx, S, nl2)
         C = C - U @ (U.T @ C)
-        coef = _solve(C, y_rest)
+        coef = solve(C, y_rest)
         r = y_rest - C @ coef
         with np.errstate(invalid="ignore", divide="ignore"):
             par = eff.parameters(coef, labels, nl2, ctx)
@@ -375,7 +376,7 @@ def _at_rest(ctx: Context, idx: np.ndarray, settle_s: float = SETTLE_S) -> np.nd
     return (dwell & (ctx.t_s - ctx.t_s[first] >= settle_s))[idx]
 
 
-def _at_rest_check(ctx: Context, A: np.ndarray, beta: np.ndarray, cov: np.ndarray,
+def at_rest_check(ctx: Context, A: np.ndarray, beta: np.ndarray, cov: np.ndarray,
                    y: np.ndarray, idx: np.ndarray, tau: np.ndarray, static: list) -> None:
     """The static findings' coefficients (``static``: their slices of ``A``; the set-up,
     the bar length, geometry, a play) read again from the settled dwells alone, where
@@ -389,7 +390,7 @@ def _at_rest_check(ctx: Context, A: np.ndarray, beta: np.ndarray, cov: np.ndarra
     0.006), and so does a dynamic effect too small to be named (a 5-axis lag below the
     noise moved it by 0.38 um against 0.02).  Were the models right, the two readings
     would differ with variance var(rest) - var(all); a difference beyond twice that
-    spread adds its excess, as for the timing (:func:`_settle`).  With too few settled
+    spread adds its excess, as for the timing (:func:`settle`).  With too few settled
     samples nothing changes."""
     cols = np.concatenate([np.arange(A.shape[1])[sl] for sl in static]) if static else []
     if not len(cols):
@@ -398,8 +399,8 @@ def _at_rest_check(ctx: Context, A: np.ndarray, beta: np.ndarray, cov: np.ndarra
     if rest.sum() < max(200, 20 * len(cols)):
         return
     A_r, y_r = A[np.ix_(rest, cols)], y[rest]
-    b_r = _solve(A_r, y_r)
-    cov_r = _covariance(A_r, y_r - A_r @ b_r, tau[rest]) + GAIN_STD ** 2 * np.outer(b_r, b_r)
+    b_r = solve(A_r, y_r)
+    cov_r = covariance(A_r, y_r - A_r @ b_r, tau[rest]) + GAIN_STD ** 2 * np.outer(b_r, b_r)
     with np.errstate(invalid="ignore"):
         spread = np.maximum(np.diag(cov_r) - np.diag(cov)[cols], 0.0)
         d2 = (beta[cols] - b_r) ** 2
@@ -411,12 +412,12 @@ def _at_rest_check(ctx: Context, A: np.ndarray, beta: np.ndarray, cov: np.ndarra
                       c, b, beta[c], math.sqrt(e))
 
 
-def _covariance(A: np.ndarray, resid: np.ndarray, tau: np.ndarray) -> np.ndarray:
-    """Covariance of :func:`_solve`'s coefficients: the residual's variance (what the
+def covariance(A: np.ndarray, resid: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """Covariance of :func:`solve`'s coefficients: the residual's variance (what the
     fit leaves, unexplained structure included: not only the sensor's noise), times
     (1 + rho) / (1 - rho) for the residual's correlation from sample to sample (samples
     count as fewer independent ones, as in the selection), through the pseudo-inverse
-    at :func:`_solve`'s threshold.  The instrument's gain scales the coefficients
+    at :func:`solve`'s threshold.  The instrument's gain scales the coefficients
     together: :data:`GAIN_STD` squared times ``coef coef^T`` is added by the caller,
     which has them.  A coefficient with a part in a combination the data
     cannot tell apart (below that threshold) gets an infinite variance; so does one the
@@ -424,9 +425,9 @@ def _covariance(A: np.ndarray, resid: np.ndarray, tau: np.ndarray) -> np.ndarray
     p = A.shape[1]
     if p == 0:
         return np.zeros((0, 0))
-    var = _residual_variance(resid, tau)
+    var = residual_variance(resid, tau)
     scale = np.sqrt((A * A).sum(0))
-    blind = _blind(A)
+    blind = unseen_columns(A)
     scale[blind] = np.inf
     _, sv, vt = np.linalg.svd(A / scale, full_matrices=False)
     keep = sv > 1e-5 * sv[0] if len(sv) and sv[0] > 0 else np.zeros(len(sv), bool)
@@ -443,22 +444,22 @@ def _covariance(A: np.ndarray, resid: np.ndarray, tau: np.ndarray) -> np.ndarray
     return cov
 
 
-def _seen_parameters(eff: Effect, C: np.ndarray, coef: np.ndarray, labels, nl: dict,
+def seen_parameters(eff: Effect, C: np.ndarray, coef: np.ndarray, labels, nl: dict,
                      ctx: Context, cov: np.ndarray | None = None
                      ) -> tuple[dict, list, dict, list]:
     """A finding's parameters without those the bar cannot see (a column below
-    :func:`_solve`'s threshold everywhere: a spindle's Y drift on a B-C table set-up that
+    :func:`solve`'s threshold everywhere: a spindle's Y drift on a B-C table set-up that
     keeps the bar in the XZ plane), which least squares leaves at 0 and which are not
     estimates; and the names of those left out.
 
-    With ``cov``, the coefficients' covariance (:func:`_covariance`), also each
+    With ``cov``, the coefficients' covariance (:func:`covariance`), also each
     parameter's standard uncertainty, propagated through ``eff.parameters`` by central
     differences (a lag from a shrink's square root, an amplitude from a sine and a
     cosine), and the names of the parameters the data do not determine apart from the
     others (an infinite variance), which are left out like the unseen ones: never more
     numbers than the recording's rank.  Parameters the coefficients do not move (found
     by a search on a grid: a frequency, a time constant) get no uncertainty here."""
-    blind = _blind(C)
+    blind = unseen_columns(C)
     coef = np.where(blind, np.nan, coef)
     with np.errstate(invalid="ignore"):
         out = eff.parameters(coef, labels, nl, ctx)
@@ -513,14 +514,14 @@ def _propagated(eff: Effect, coef: np.ndarray, cov: np.ndarray, labels, nl: dict
 HELDOUT_CHI2 = 25.0
 
 
-def _heldout_need(opt: "Options", mse_ho: float, noise: float, C_ho: np.ndarray) -> float:
+def heldout_need(opt: "Options", mse_ho: float, noise: float, C_ho: np.ndarray) -> float:
     """The held-out MSE drop an effect acting through ``C_ho`` must bring: its size
     where it acts, both parts in proportion to the share of samples it acts on (a mode
     ringing after each start and stop must explain its own samples, not the whole
     trace), and never less than :data:`HELDOUT_CHI2` noise variances over the held-out
     samples (the floor a local effect's tiny share would otherwise take to nothing)."""
     practical = max(opt.min_heldout_gain * mse_ho, (opt.min_effect_noise * noise) ** 2)
-    return max(practical * _support(C_ho), HELDOUT_CHI2 * noise ** 2 / max(len(C_ho), 1))
+    return max(practical * support(C_ho), HELDOUT_CHI2 * noise ** 2 / max(len(C_ho), 1))
 
 
 def noise_estimate(r: np.ndarray, tau: np.ndarray) -> float:
@@ -583,11 +584,11 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     # describe
     log.debug("first pass: %s at offset %.4f s, clock %.1f ppm",
               [(f.effect, f.nonlinear) for f in first.findings], al.offset_s, al.clock_ppm)
-    X = _model_columns(ctx, lib, expected, first.findings)
-    pose = _needed_blocks(ctx, expected, t_m, y, al, X[:, 2:],
+    X = model_columns(ctx, lib, expected, first.findings)
+    pose = needed_blocks(ctx, expected, t_m, y, al, X[:, 2:],
                           pose_blocks(plan, ctx), options.bic_margin)
     first_al = al
-    al, jump, names = _settle(ctx, lib, expected, t_m, y, pose, first.findings, first_al)
+    al, jump, names = settle_timing(ctx, lib, expected, t_m, y, pose, first.findings, first_al)
     step("realigned with the findings")
     geometry = GeometryBeyond(plan.config.machine, plan.tested_travel())
 
@@ -621,7 +622,7 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
         # a lag kept without what it shared the first timing with (a contour smoothing
         # found beside it) reads the start afresh: once more with what was kept
         log.debug("settling again with %s", sorted(kept))
-        al, jump, _ = _settle(ctx, lib, expected, t_m, y, pose, result.findings, first_al,
+        al, jump, _ = settle_timing(ctx, lib, expected, t_m, y, pose, result.findings, first_al,
                               partners=False)
         result = explain(kept, al, jump, profiled(result.findings))
     elif dropped:
@@ -631,20 +632,20 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
         # and a drift at the clock's edge).  Settled again with what was kept - and the
         # new timing taken only where the settled one said it could lie: unconditionally,
         # it moved a mount slip's start by 4.8 s against a stated 10 ms
-        again, jump2, _ = _settle(ctx, lib, expected, t_m, y, pose, result.findings, first_al,
+        again, jump2, _ = settle_timing(ctx, lib, expected, t_m, y, pose, result.findings, first_al,
                                   partners=False)
         log.debug("settling again without %s: offset %.4f -> %.4f s, clock %.1f -> %.1f ppm",
                   sorted(dropped), al.offset_s, again.offset_s, al.clock_ppm, again.clock_ppm)
-        if _consistent(again, al) and again.rms_um <= al.rms_um:
+        if consistent(again, al) and again.rms_um <= al.rms_um:
             al, jump = again, jump2
             result = explain(kept, al, jump, profiled(result.findings))
-    elif jump is None and (moved := _reshaped(first.findings, result.findings)):
+    elif jump is None and (moved := reshaped(first.findings, result.findings)):
         # the same findings with other shapes at the settled timing than at the first
         # one, which the settled timing was polished with (a play's slack at the start
         # read 0.99 um there and 4.6 here, a spurious play of Z gone: the start stayed
         # 6.1 ms late, stated +- 0.74 ms): the timing polished again from the settled
         # one with the shapes read there, and kept where it fits better nearby
-        again, _, _ = _settle(ctx, lib, expected, t_m, y, pose, result.findings, al,
+        again, _, _ = settle_timing(ctx, lib, expected, t_m, y, pose, result.findings, al,
                               partners=False)
         log.debug("settling again with the shapes of %s: offset %.4f -> %.4f s, clock %.1f "
                   "-> %.1f ppm, rms %.5f -> %.5f um", ", ".join(moved), al.offset_s,
@@ -658,8 +659,8 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
         if f.effect in earlier:
             f.runner_up = earlier[f.effect].runner_up
             f.runner_up_ratio = earlier[f.effect].runner_up_ratio
-            _confidence(f)
-    result.findings = _pair_ambiguity(result.findings)
+            judge_confidence(f)
+    result.findings = pair_ambiguity(result.findings)
     if timing_is_weak(result.alignment):
         # effects read through their timing (a lag of milliseconds) cannot be named
         # with confidence when the recording's timing is this uncertain
@@ -687,7 +688,7 @@ RESHAPED_PPM = 100.0
 RESHAPED_SHARE = 0.2
 
 
-def _reshaped(before: list, after: list) -> list[str]:
+def reshaped(before: list, after: list) -> list[str]:
     """The effects found in both ``before`` and ``after`` whose nonlinear parameters
     (not a servo mismatch's second-order hints) differ by more than
     :data:`RESHAPED_SHARE`, or of which one holds a parameter the other does not."""
@@ -706,7 +707,7 @@ def _reshaped(before: list, after: list) -> list[str]:
     return out
 
 
-def _consistent(new: Alignment, old: Alignment, k: float = 3.0) -> bool:
+def consistent(new: Alignment, old: Alignment, k: float = 3.0) -> bool:
     """Does ``new`` lie where ``old`` said the timing could be: offset and clock rate
     each within ``k`` combined standard uncertainties?"""
     return (abs(new.offset_s - old.offset_s) <= k * math.hypot(new.offset_std_s, old.offset_std_s)
@@ -731,7 +732,7 @@ def _unsure_effects(lib: list[Effect], findings: list) -> list[str]:
 def _timing_reading(ctx: Context, lib: list[Effect], X: np.ndarray, t_m: np.ndarray,
                     y: np.ndarray, findings: list, al: Alignment) -> np.ndarray:
     """``y`` without the samples (as not finite) where a finding, fitted at ``al`` with
-    the others (``X``: their :func:`_model_columns`), says its model leaves the reading
+    the others (``X``: their :func:`model_columns`), says its model leaves the reading
     open (``unsure_in_time``), widened by the settling after them and by three of
     ``al``'s offset uncertainties (at most 50 ms); ``y`` itself when there are none."""
     by = {e.name: e for e in lib}
@@ -741,11 +742,11 @@ def _timing_reading(ctx: Context, lib: list[Effect], X: np.ndarray, t_m: np.ndar
     ok = np.isfinite(y)
     tau = al.program_time(t_m)
     inside = np.flatnonzero(ok & (tau >= ctx.t_s[0]) & (tau <= ctx.t_s[-1]))
-    inside = inside[::max(1, -(-len(inside) // _REFINE_SAMPLES))]  # sizes, not timing
-    beta = _solve(_at(ctx.t_s, X, tau[inside]), y[inside])
+    inside = inside[::max(1, -(-len(inside) // REFINE_SAMPLES))]  # sizes, not timing
+    beta = solve(sample_at(ctx.t_s, X, tau[inside]), y[inside])
     mask = np.zeros(ctx.n, bool)
     at = 2  # after the expected reading and the constant
-    for f in filter(_timed, findings):
+    for f in filter(timed, findings):
         width = len(f.labels)
         if f.effect in unsure:
             m = by[f.effect].unsure_in_time(
@@ -767,38 +768,38 @@ def _timing_reading(ctx: Context, lib: list[Effect], X: np.ndarray, t_m: np.ndar
     return np.where(out, np.nan, y)
 
 
-def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
+def settle_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
             y: np.ndarray, pose: list[np.ndarray], findings: list, first_al: Alignment,
             partners: bool = True) -> tuple[Alignment, SetupStep | None, set]:
     """The timing searched afresh with ``findings`` (and the pose blocks), their lags
     profiled with it; with ``partners``, a finding one feed cannot tell from its partner
     also tried with the partner in its place.  The alignment, the set-up step (or None)
     and the effects to judge again."""
-    X = _model_columns(ctx, lib, expected, findings)
-    D = _shape_columns(ctx, lib, findings)
-    al, jump = _realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:], D]), first_al)
-    shifted, widen_s, why_s = _shape_scan(ctx, lib, expected, t_m, y, pose, findings, al, jump)
+    X = model_columns(ctx, lib, expected, findings)
+    D = shape_columns(ctx, lib, findings)
+    al, jump = realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:], D]), first_al)
+    shifted, widen_s, why_s = shape_scan(ctx, lib, expected, t_m, y, pose, findings, al, jump)
     seed = first_al
     if shifted is not None:
         # a shape that held the timing in the wrong valley: the timing polished from the
         # new one, and from there after the profile too (from the first timing it went
         # back to a valley 6 ms from it)
-        X = _model_columns(ctx, lib, expected, findings)
-        D = _shape_columns(ctx, lib, findings)
-        al, jump = _realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:], D]),
+        X = model_columns(ctx, lib, expected, findings)
+        D = shape_columns(ctx, lib, findings)
+        al, jump = realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:], D]),
                             shifted)
         seed = al
-    changed, widen = _profile_timing(ctx, lib, expected, t_m, y, pose, findings, al, jump)
+    changed, widen = profile_timing(ctx, lib, expected, t_m, y, pose, findings, al, jump)
     if changed:
         # the lagged findings' columns changed with it: the timing searched again
-        X = _model_columns(ctx, lib, expected, findings)
-        D = _shape_columns(ctx, lib, findings)
-        al, jump = _realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:], D]), seed)
+        X = model_columns(ctx, lib, expected, findings)
+        D = shape_columns(ctx, lib, findings)
+        al, jump = realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:], D]), seed)
     by = {e.name: e for e in lib}
     lagged = sorted(f.effect for f in findings if by[f.effect].timing_parameter)
-    al = _widened(al, widen, f"what the lag of {' and '.join(lagged)}, profiled with the "
+    al = widened(al, widen, f"what the lag of {' and '.join(lagged)}, profiled with the "
                              f"timing, leaves open")
-    al = _widened(al, widen_s, why_s)
+    al = widened(al, widen_s, why_s)
     y_sure = _timing_reading(ctx, lib, X, t_m, y, findings, first_al)
     if y_sure is not y:
         # the timing read again without what a finding's model leaves open.  Were the
@@ -809,7 +810,7 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
         # from every sample is kept (without them a slow program lost most of its
         # timing: SDIT_C's stick-slip 6 went from 1.2 ms off to 10.8, within what the
         # information lost explains)
-        sure, _ = _realign(ctx, expected, t_m, y_sure,
+        sure, _ = realign(ctx, expected, t_m, y_sure,
                            np.column_stack([*pose, X[:, 2:], D]), first_al)
         log.debug("timing without the unsure samples: offset %.4f +- %.2f ms vs %.4f s, "
                   "clock %.1f +- %.1f vs %.1f ppm", sure.offset_s, sure.offset_std_s * 1e3,
@@ -820,7 +821,7 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
             return math.sqrt(d * d - spread) if d * d > 4.0 * spread else 0.0
 
         unsure = _unsure_effects(lib, findings)
-        wide = _widened(al, (excess(sure.offset_s - al.offset_s, sure.offset_std_s,
+        wide = widened(al, (excess(sure.offset_s - al.offset_s, sure.offset_std_s,
                                     al.offset_std_s),
                              excess(sure.clock_ppm - al.clock_ppm, sure.clock_std_ppm,
                                     al.clock_std_ppm)),
@@ -846,15 +847,15 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
                         if f.effect in pair), None)
         if partner is None or partner in names:
             continue
-        Xa = _model_columns(ctx, lib, expected, [g for g in findings if g is not f])
+        Xa = model_columns(ctx, lib, expected, [g for g in findings if g is not f])
         other, jump_o = first_al, None
         for _ in range(3):  # its parameters and the timing depend on each other
-            cols = _partner_columns(ctx, next(e for e in lib if e.name == partner), expected,
+            cols = partner_columns(ctx, next(e for e in lib if e.name == partner), expected,
                                     t_m, y, other)
             if cols is None:
                 break
             prev = other
-            other, jump_o = _realign(ctx, expected, t_m, y,
+            other, jump_o = realign(ctx, expected, t_m, y,
                                      np.column_stack([*pose, Xa[:, 2:], cols]), prev)
             if abs(other.offset_s - prev.offset_s) < 1e-3:
                 break
@@ -869,9 +870,9 @@ def _settle(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
         # carries its delay into the offset, a zero-phase smoothing does not: a smoothing
         # read as a lag left the start 11.8 ms early against a stated 1.1 ms): where the
         # other fits about as well, the timing is known no better than the two differ
-        spread = _alike_spread(worse, better, min(int(np.isfinite(y).sum()), _REFINE_SAMPLES))
+        spread = alike_spread(worse, better, min(int(np.isfinite(y).sum()), REFINE_SAMPLES))
         if spread is not None:
-            al = _widened(al, spread,
+            al = widened(al, spread,
                           f"{partner} in place of {f.effect} (which this recording cannot "
                           f"tell apart) fits about as well with the start "
                           f"{abs(worse.offset_s - better.offset_s) * 1e3:.2f} ms elsewhere")
@@ -889,7 +890,7 @@ SURE_CLOCK_PPM = 20.0
 SURE_OFFSET_S = 0.01
 
 
-def _realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
+def realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
              extra: np.ndarray, first: Alignment, rounds: int = 6, margin: float = 10.0
              ) -> tuple[Alignment, SetupStep | None]:
     """The timing searched afresh with the columns ``extra``, seeded with ``first``.
@@ -922,7 +923,7 @@ def _realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
         # program stayed 6.1 ms late and 16.5 ppm slow, stated +- 0.74 ms, where the
         # truth's neighbourhood fit better by 2500 in chi-square; the neighbourhood is
         # scanned, and a better valley taken
-        near = _local_scan(ctx, X, t_m, y, plain, CLOCK_LIMIT_PPM, samples=10_000)
+        near = local_scan(ctx, X, t_m, y, plain, CLOCK_LIMIT_PPM, samples=10_000)
         if near is not plain:
             log.debug("a better valley near the polished timing: offset %.4f -> %.4f s, "
                       "clock %.1f -> %.1f ppm, rms %.5f -> %.5f um", plain.offset_s,
@@ -953,7 +954,7 @@ def _realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     return al, jump
 
 
-def _profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
+def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
                     y: np.ndarray, pose: list[np.ndarray], findings: list, al: Alignment,
                     jump: SetupStep | None) -> tuple[bool, tuple[float, float]]:
     """Lags trade with the recording's start: the alignment puts the reference lag into
@@ -976,23 +977,23 @@ def _profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: 
     widen = [0.0, 0.0]
     allg = Samples(np.arange(ctx.n), ctx.t_s)
     yc = y if jump is None else y - jump.reading_um(ctx, al, t_m)
-    n_fit = min(int(np.isfinite(yc).sum()), _PROFILE_SAMPLES)
+    n_fit = min(int(np.isfinite(yc).sum()), PROFILE_SAMPLES)
     by = {e.name: e for e in lib}
     for f in findings:
         eff = by[f.effect]
         if eff.timing_parameter is None:
             continue
         key, grid = eff.timing_parameter
-        rest = _model_columns(ctx, lib, expected, [g for g in findings if g is not f])[:, 2:]
+        rest = model_columns(ctx, lib, expected, [g for g in findings if g is not f])[:, 2:]
         fits: dict[float, Alignment] = {}
-        model = _TrialModel(ctx, expected, np.column_stack([*pose, rest]))
+        model = TrialModel(ctx, expected, np.column_stack([*pose, rest]))
 
         def trial(c: float) -> float:
             c = float(c)
             if c not in fits:
                 X = model.with_columns(eff.columns(ctx, allg, {**f.nonlinear, key: c})[0])
                 fits[c] = refine(ctx, X, t_m, yc, al.offset_s, al.clock_ppm, iterations=4,
-                                 max_samples=_PROFILE_SAMPLES, check=False)
+                                 max_samples=PROFILE_SAMPLES, check=False)
             return fits[c].rms_um
 
         coarse = list(grid[::2]) + ([grid[-1]] if len(grid) % 2 == 0 else [])
@@ -1021,7 +1022,7 @@ def _profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: 
             continue
         b = fits[best]
         for c, a in fits.items():
-            spread = _alike_spread(a, b, n_fit)
+            spread = alike_spread(a, b, n_fit)
             if spread is not None:
                 widen = [max(w, v) for w, v in zip(widen, spread)]
         if best != f.nonlinear.get(key):
@@ -1048,10 +1049,10 @@ def _parabola_vertex(values: dict[float, float]) -> float | None:
 #: the shifts (s) of a finding's reading at which its shape is searched again, and the
 #: samples the scan reads
 SHAPE_SHIFTS_S = tuple(np.round(np.arange(-0.032, 0.0321, 0.002), 3))
-_SCAN_SAMPLES = 30_000
+SCAN_SAMPLES = 30_000
 
 
-def _shape_scan(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
+def shape_scan(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
                 y: np.ndarray, pose: list[np.ndarray], findings: list, al: Alignment,
                 jump: SetupStep | None, rounds: int = 3
                 ) -> tuple[Alignment | None, tuple[float, float], str]:
@@ -1073,19 +1074,19 @@ def _shape_scan(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.n
     differ: the amounts (offset s, clock ppm) to widen by, and why, are returned too."""
     by = {e.name: e for e in lib}
     span = ctx.t_s[-1] - ctx.t_s[0]
-    n_fit = min(int(np.isfinite(y).sum()), _REFINE_SAMPLES)
+    n_fit = min(int(np.isfinite(y).sum()), REFINE_SAMPLES)
     taken, widen, why = None, (0.0, 0.0), ""
     for f in findings:
         eff = by[f.effect]
         if not eff.shape_holds_timing:
             continue
         rest = generic_columns(ctx, expected, np.column_stack(
-            [*pose, _model_columns(ctx, lib, expected, [g for g in findings if g is not f])[:, 2:]]))
+            [*pose, model_columns(ctx, lib, expected, [g for g in findings if g is not f])[:, 2:]]))
 
         def model() -> np.ndarray:  # every column, with the findings as they are now
             return generic_columns(ctx, expected, np.column_stack([
-                *pose, _model_columns(ctx, lib, expected, findings)[:, 2:],
-                _shape_columns(ctx, lib, findings)]))
+                *pose, model_columns(ctx, lib, expected, findings)[:, 2:],
+                shape_columns(ctx, lib, findings)]))
 
         cur = taken or al
         for _ in range(rounds):
@@ -1095,10 +1096,10 @@ def _shape_scan(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.n
                                 & (tau_all <= ctx.t_s[-1]))
             if len(ok) < 1000:
                 break
-            ok = ok[:: max(1, -(-len(ok) // _SCAN_SAMPLES))]
+            ok = ok[:: max(1, -(-len(ok) // SCAN_SAMPLES))]
             tau, yy = tau_all[ok], yc[ok]
-            G = _at(ctx.t_s, rest, tau)
-            r = yy - G @ _lsq(G, yy)
+            G = sample_at(ctx.t_s, rest, tau)
+            r = yy - G @ lsq(G, yy)
 
             def gain(d: float, nl: dict | None) -> tuple[float, dict | None]:
                 """The shape's reduction of ``r`` shifted by ``d`` (searched afresh
@@ -1114,7 +1115,7 @@ def _shape_scan(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.n
                     return 0.0, None
                 if C is None or not C.shape[1] or not np.isfinite(C).all():
                     return 0.0, None
-                return _proj_gain(C, r), nl
+                return projection_gain(C, r), nl
 
             held_gain = gain(0.0, f.nonlinear)[0]
             gains = {d: gain(d, None) for d in SHAPE_SHIFTS_S}
@@ -1132,7 +1133,7 @@ def _shape_scan(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.n
             log.debug("%s shifted %+.1f ms: rms %.5f at %.4f s vs %.5f held at %.4f s",
                       f.effect, d * 1e3, moved.rms_um, moved.offset_s, held.rms_um,
                       held.offset_s)
-            spread = _alike_spread(moved, held, n_fit)
+            spread = alike_spread(moved, held, n_fit)
             if spread is not None:
                 widen = (max(widen[0], spread[0]), max(widen[1], spread[1]))
                 why = (f"{f.effect} with its shape searched {d * 1e3:+.0f} ms away fits about "
@@ -1146,11 +1147,11 @@ def _shape_scan(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.n
 
 
 #: samples a profiled parameter's timing is polished on, and a full alignment (refine's)
-_PROFILE_SAMPLES = 30_000
-_REFINE_SAMPLES = 120_000
+PROFILE_SAMPLES = 30_000
+REFINE_SAMPLES = 120_000
 
 
-def _alike_spread(a: Alignment, b: Alignment, n_fit: int) -> tuple[float, float] | None:
+def alike_spread(a: Alignment, b: Alignment, n_fit: int) -> tuple[float, float] | None:
     """Two fits of the same reading at different timings: where the worse is worse by
     ``dchi2`` <= 9 (in units of the better's residual variance over ``n_fit`` samples),
     the standard uncertainty (offset s, clock ppm) their distance implies on a quadratic
@@ -1165,7 +1166,7 @@ def _alike_spread(a: Alignment, b: Alignment, n_fit: int) -> tuple[float, float]
             abs(worse.clock_ppm - better.clock_ppm) / scale)
 
 
-def _widened(al: Alignment, widen: tuple[float, float], why: str) -> Alignment:
+def widened(al: Alignment, widen: tuple[float, float], why: str) -> Alignment:
     """``al`` with its uncertainties taking in ``widen`` (offset s, clock ppm) in
     quadrature, and ``why`` with the amounts among its reasons."""
     if widen[0] <= 0 and widen[1] <= 0:
@@ -1182,7 +1183,7 @@ def _widened(al: Alignment, widen: tuple[float, float], why: str) -> Alignment:
                                widened_by=reasons)
 
 
-class _TrialModel:
+class TrialModel:
     """``generic_columns(ctx, expected, [fixed, cols])`` for one trial's ``cols`` after
     another (a parameter profiled on a grid): the same matrix, built once and its last
     columns overwritten while every new column varies as the last ones did (the generic
@@ -1205,7 +1206,7 @@ class _TrialModel:
         return X
 
 
-def _partner_columns(ctx: Context, eff: Effect, expected: np.ndarray, t_m: np.ndarray,
+def partner_columns(ctx: Context, eff: Effect, expected: np.ndarray, t_m: np.ndarray,
                      y: np.ndarray, al: Alignment, max_samples: int = 60_000):
     """``eff``'s columns on the trajectory grid, its nonlinear parameters searched on
     what the set-up leaves of the reading at the timing ``al``; None when it has nothing
@@ -1220,13 +1221,13 @@ def _partner_columns(ctx: Context, eff: Effect, expected: np.ndarray, t_m: np.nd
                   0, ctx.n - 1)
     # the set-up only: the generic columns' v^2 and acceleration terms are the lag's own
     # signature and would leave it nothing but its longest tail
-    G = _at(ctx.t_s, np.column_stack([expected, np.ones(ctx.n), ctx.u]), tt)
-    r = y[ok] - G @ _lsq(G, y[ok])
+    G = sample_at(ctx.t_s, np.column_stack([expected, np.ones(ctx.n), ctx.u]), tt)
+    r = y[ok] - G @ lsq(G, y[ok])
     # judged as fitted together with the set-up (which shares a smoothing's or a lag's
     # shrink while moving)
     Q, sv, _ = np.linalg.svd(G, full_matrices=False)
     with fitted_beside(Q[:, sv > sv[0] * 1e-10]):
-        cand = _candidate(eff, ctx, Samples(idx, tt), r)
+        cand = search_candidate(eff, ctx, Samples(idx, tt), r)
     if cand is None:
         return None
     log.debug("partner %s: %s", eff.name, cand[0])
@@ -1240,9 +1241,9 @@ def _fit_stats(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, al: 
     tau = al.program_time(t_m)
     idx = np.flatnonzero(np.isfinite(y))[:max_samples]
     tt = np.clip(tau[idx], ctx.t_s[0], ctx.t_s[-1])
-    A = _at(ctx.t_s, X, tt)
-    r = y[idx] - A @ _lsq(A, y[idx])
-    rho = _rho(r, tt)
+    A = sample_at(ctx.t_s, X, tt)
+    r = y[idx] - A @ lsq(A, y[idx])
+    rho = serial_correlation(r, tt)
     return float(r @ r), max(len(idx) * (1 - rho) / (1 + rho), 10.0)
 
 
@@ -1261,7 +1262,7 @@ def pose_blocks(plan: PlanFiles, ctx: Context) -> list[np.ndarray]:
     return out
 
 
-def _needed_blocks(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
+def needed_blocks(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
                    al: Alignment, found: np.ndarray, blocks: list[np.ndarray],
                    margin: float, max_samples: int = 300_000) -> list[np.ndarray]:
     """The blocks the recording needs beyond the generic columns and what was found, each
@@ -1275,17 +1276,17 @@ def _needed_blocks(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.nd
         return blocks
     ok = ok[:max_samples]  # contiguous: the residual's correlation is read sample to sample
     yy = y[ok]
-    base = _at(ctx.t_s, generic_columns(ctx, expected, found), tau[ok])
-    r0 = yy - base @ _lsq(base, yy)
+    base = sample_at(ctx.t_s, generic_columns(ctx, expected, found), tau[ok])
+    r0 = yy - base @ lsq(base, yy)
     rss0 = float(r0 @ r0)
-    rho = _rho(r0, tau[ok])
+    rho = serial_correlation(r0, tau[ok])
     n_eff = max(len(ok) * (1 - rho) / (1 + rho), 10.0)
     keep = []
     for B in blocks:
         if B.shape[1] == 0:
             continue
-        A = np.column_stack([base, _at(ctx.t_s, B, tau[ok])])
-        r1 = yy - A @ _lsq(A, yy)
+        A = np.column_stack([base, sample_at(ctx.t_s, B, tau[ok])])
+        r1 = yy - A @ lsq(A, yy)
         dbic = n_eff * math.log(rss0 / max(float(r1 @ r1), 1e-30)) - B.shape[1] * math.log(n_eff)
         if dbic >= margin:
             keep.append(B)
@@ -1326,7 +1327,7 @@ def dynamic_columns(ctx: Context) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def _shape_columns(ctx, lib, findings) -> np.ndarray:
+def shape_columns(ctx, lib, findings) -> np.ndarray:
     """The first-order change of each finding's columns with its continuous nonlinear
     parameters (a pulse's rise and decay, a play's width, a mode's frequency): fitted
     beside the timing, the shape is free within its linearisation, so that the timing's
@@ -1336,7 +1337,7 @@ def _shape_columns(ctx, lib, findings) -> np.ndarray:
     allg = Samples(np.arange(ctx.n), ctx.t_s)
     by = {e.name: e for e in lib}
     out = []
-    for f in filter(_timed, findings):
+    for f in filter(timed, findings):
         eff = by[f.effect]
         skip = set(getattr(eff, "discrete", ())) | (
             {eff.timing_parameter[0]} if eff.timing_parameter else set())
@@ -1362,23 +1363,23 @@ def _shape_columns(ctx, lib, findings) -> np.ndarray:
     return np.column_stack(out) if out else np.zeros((ctx.n, 0))
 
 
-def _timed(f) -> bool:
+def timed(f) -> bool:
     """Is the finding's reading locked to the program, to be fitted beside the timing?  A
     steady ripple is locked to time instead: it would pull the clock rate."""
     return not (f.effect == "vibration" and f.nonlinear.get("steady"))
 
 
-def _model_columns(ctx, lib, expected, findings) -> np.ndarray:
+def model_columns(ctx, lib, expected, findings) -> np.ndarray:
     """The expected reading, a constant and the columns of every finding that is
-    :func:`_timed`, in that order."""
+    :func:`timed`, in that order."""
     allg = Samples(np.arange(ctx.n), ctx.t_s)
     by = {e.name: e for e in lib}
     return np.column_stack([expected[:, None], np.ones((ctx.n, 1))]
                            + [by[f.effect].columns(ctx, allg, f.nonlinear)[0]
-                              for f in filter(_timed, findings)])
+                              for f in filter(timed, findings)])
 
 
-def _candidate(eff: Effect, ctx: Context, S: Samples, r: np.ndarray, pinned: dict | None = None):
+def search_candidate(eff: Effect, ctx: Context, S: Samples, r: np.ndarray, pinned: dict | None = None):
     """An effect's nonlinear parameters searched on the residual ``r`` (those in
     ``pinned`` kept as given) and its columns there, or None when it has nothing to
     offer."""
@@ -1439,7 +1440,7 @@ def _joint_group(group, A_tr, A_ho, y_tr, y_ho, r_ho, rss0, n_eff, noise, opt, c
     single effect's must."""
     C_tr = np.column_stack([t[3] for t in group])
     A1 = np.column_stack([A_tr, C_tr])
-    beta = _solve(A1, y_tr)
+    beta = solve(A1, y_tr)
     new_tr = y_tr - A1 @ beta
     p = C_tr.shape[1]
     dbic = n_eff * math.log(rss0 / max(float(new_tr @ new_tr), 1e-30)) - p * math.log(n_eff)
@@ -1455,7 +1456,7 @@ def _joint_group(group, A_tr, A_ho, y_tr, y_ho, r_ho, rss0, n_eff, noise, opt, c
     C_ho = np.column_stack([o[4] for o in out])
     new_ho = y_ho - np.column_stack([A_ho, C_ho]) @ beta
     mse_ho = float(np.mean(r_ho ** 2))
-    if mse_ho - float(np.mean(new_ho ** 2)) < _heldout_need(opt, mse_ho, noise, C_ho):
+    if mse_ho - float(np.mean(new_ho ** 2)) < heldout_need(opt, mse_ho, noise, C_ho):
         return None
     log.debug("%s together: BIC %+.1f, held-out MSE %.4g -> %.4g",
               " and ".join(t[1].name for t in group), dbic, mse_ho, float(np.mean(new_ho ** 2)))
@@ -1474,10 +1475,10 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
     idx = np.clip(np.rint((tau - ctx.t_s[0]) / (T - ctx.t_s[0]) * (ctx.n - 1)).astype(int),
                   0, ctx.n - 1)
     gap = y[sel] - np.interp(tau, ctx.t_s, expected)
-    held = _held_stretches(ctx, opt.heldout_every)[_units(ctx)[idx]]
+    held = held_stretches(ctx, opt.heldout_every)[stretch_numbers(ctx)[idx]]
     rng = np.random.default_rng(0)
-    tr = _block_choice(np.flatnonzero(~held), opt.max_fit_samples, rng)
-    ho = _block_choice(np.flatnonzero(held), opt.max_fit_samples // 2, rng)
+    tr = block_choice(np.flatnonzero(~held), opt.max_fit_samples, rng)
+    ho = block_choice(np.flatnonzero(held), opt.max_fit_samples // 2, rng)
     S_tr, S_ho = Samples(idx[tr], tau[tr]), Samples(idx[ho], tau[ho])
     y_tr, y_ho = gap[tr], gap[ho]
     noise = noise_estimate(gap, tau)
@@ -1500,7 +1501,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
         key = tuple(id(c) for c in rest_cols)
         memo = searched.setdefault(key, {})
         if eff.name not in memo:
-            memo[eff.name] = _candidate(eff, ctx, S_tr, r, pinned)
+            memo[eff.name] = search_candidate(eff, ctx, S_tr, r, pinned)
         return memo[eff.name]
 
     def take(f, eff, nl, labels, C_tr, C_ho, A_tr, A_ho):
@@ -1514,7 +1515,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
 
     while len(findings) < opt.max_effects:
         step(f"selection step {len(findings) + 1}")
-        rho = _rho(r_tr, S_tr.tau_s)
+        rho = serial_correlation(r_tr, S_tr.tau_s)
         n_eff = max(len(tr) * (1 - rho) / (1 + rho), 10.0)
         rss0 = float(r_tr @ r_tr)
         q, _ = np.linalg.qr(A_tr) if A_tr.shape[1] else (np.zeros((len(tr), 0)), None)
@@ -1530,7 +1531,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             keep = np.sqrt((Cp * Cp).sum(0)) > 1e-9 * max(1.0, float(np.sqrt((C_tr * C_tr).sum(0)).max()))
             if not keep.any():
                 continue
-            coef = _solve(Cp[:, keep], r_tr)
+            coef = solve(Cp[:, keep], r_tr)
             fit = Cp[:, keep] @ coef
             gain = float(r_tr @ r_tr - (r_tr - fit) @ (r_tr - fit))
             trials.append((gain, eff, nl, C_tr, labels, int(keep.sum())))
@@ -1553,7 +1554,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             if dbic < opt.bic_margin:
                 continue
             A1 = np.column_stack([A_tr, C_tr])
-            beta = _solve(A1, y_tr)
+            beta = solve(A1, y_tr)
             C_ho, _ = eff.columns(ctx, S_ho, nl)
             B1 = np.column_stack([A_ho, C_ho])
             new_tr, new_ho = y_tr - A1 @ beta, y_ho - B1 @ beta
@@ -1565,7 +1566,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                 log.debug("%s: implausible (%s)", eff.name, why)
                 continue
             mse_ho = float(np.mean(r_ho ** 2))
-            need = _heldout_need(opt, mse_ho, noise, C_ho)
+            need = heldout_need(opt, mse_ho, noise, C_ho)
             if mse_ho - float(np.mean(new_ho ** 2)) < need:
                 log.debug("%s %s: held-out MSE %.4g -> %.4g, needs a drop of %.3g", eff.name, nl, mse_ho,
                           float(np.mean(new_ho ** 2)), need)
@@ -1601,14 +1602,14 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             return y_tr.copy(), y_ho.copy()
         A = np.column_stack([cols_tr[i] for i in keep])
         B = np.column_stack([cols_ho[i] for i in keep])
-        beta = _solve(A, y_tr)
+        beta = solve(A, y_tr)
         return y_tr - A @ beta, y_ho - B @ beta
 
     def prune(keep):
         keep = list(keep)
         while len(keep) > 1:
             full_tr, full_ho = fit(keep)
-            rho = _rho(full_tr, S_tr.tau_s)
+            rho = serial_correlation(full_tr, S_tr.tau_s)
             n_eff = max(len(tr) * (1 - rho) / (1 + rho), 10.0)
             rss_full = float(full_tr @ full_tr)
             worst, worst_score = None, math.inf
@@ -1617,7 +1618,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                 p = cols_tr[i].shape[1]
                 dbic = n_eff * math.log(float(red_tr @ red_tr) / max(rss_full, 1e-30)) - p * math.log(n_eff)
                 mse_ho = float(np.mean(red_ho ** 2))
-                need = _heldout_need(opt, mse_ho, noise, cols_ho[i])
+                need = heldout_need(opt, mse_ho, noise, cols_ho[i])
                 ok = dbic >= opt.bic_margin and mse_ho - float(np.mean(full_ho ** 2)) >= need
                 if not ok and dbic < worst_score:
                     worst, worst_score = i, dbic
@@ -1633,7 +1634,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
         information criterion prefers and held-out data do not refuse, until none."""
         for _ in range(len(keep) + 1):
             full_tr, full_ho = fit(keep)
-            rho = _rho(full_tr, S_tr.tau_s)
+            rho = serial_correlation(full_tr, S_tr.tau_s)
             n_eff = max(len(tr) * (1 - rho) / (1 + rho), 10.0)
             rss_full = float(full_tr @ full_tr)
             mse_full_ho = float(np.mean(full_ho ** 2))
@@ -1652,7 +1653,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                         continue
                     nl, C_tr, labels = cand
                     A1 = np.column_stack([A_rest, C_tr])
-                    beta = _solve(A1, y_tr)
+                    beta = solve(A1, y_tr)
                     new_tr = y_tr - A1 @ beta
                     rss = float(new_tr @ new_tr)
                     dbic = (n_eff * math.log(rss_full / max(rss, 1e-30))
@@ -1665,10 +1666,10 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                     extra = C_tr.shape[1] - cols_tr[i].shape[1]
                     C_ho = eff.columns(ctx, S_ho, nl)[0] if extra > 0 else None
                     if extra < 0:
-                        ok = dbic > 0 or (rss - rss_full) / len(tr) < _heldout_need(
+                        ok = dbic > 0 or (rss - rss_full) / len(tr) < heldout_need(
                             opt, rss / len(tr), noise, cols_ho[i])
                     elif extra > 0:
-                        ok = dbic > 0 and (rss_full - rss) / len(tr) >= _heldout_need(
+                        ok = dbic > 0 and (rss_full - rss) / len(tr) >= heldout_need(
                             opt, rss_full / len(tr), noise, C_ho)
                     else:
                         ok = dbic > 0
@@ -1687,7 +1688,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                     # columns (a bar length where a scale error stood in for it) must
                     # not lose to the held-out samples' noise
                     mse_new_ho = float(np.mean(new_ho ** 2))
-                    if mse_new_ho - mse_full_ho >= _heldout_need(opt, mse_new_ho, noise,
+                    if mse_new_ho - mse_full_ho >= heldout_need(opt, mse_new_ho, noise,
                                                                  cols_ho[i]):
                         log.debug("exchange %s for %s: held-out MSE %.5g -> %.5g", eff.name,
                                   chosen[i][0].name, mse_full_ho, mse_new_ho)
@@ -1733,7 +1734,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                 A_rest = (np.column_stack([cols_tr[k] for k in rest]) if rest
                           else np.zeros((len(tr), 0)))
                 A1 = np.column_stack([A_rest, C_tr])
-                beta = _solve(A1, y_tr)
+                beta = solve(A1, y_tr)
                 new_tr = y_tr - A1 @ beta
                 if float(new_tr @ new_tr) >= float(full_tr @ full_tr):
                     continue
@@ -1771,7 +1772,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             for i in keep:
                 eff, nl_old, labels = chosen[i]
                 if beta is None:
-                    beta = _solve(np.column_stack([cols_tr[k] for k in keep]), y_tr)
+                    beta = solve(np.column_stack([cols_tr[k] for k in keep]), y_tr)
                 at = sum(cols_tr[k].shape[1] for k in keep[:keep.index(i)])
                 nl = eff.from_fit(nl_old, beta[at:at + cols_tr[i].shape[1]], labels)
                 if nl is None or all(
@@ -1828,30 +1829,30 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
     y_all = gap[allsel]
     if blocks:
         A = np.column_stack(blocks)
-        beta = _solve(A, y_all)
+        beta = solve(A, y_all)
         fitted = A @ beta
     else:
         beta, fitted = np.zeros(0), np.zeros(len(allsel))
     resid = y_all - fitted
     noise = noise_estimate(resid, tau[allsel])
-    cov = (_covariance(A, resid, tau[allsel]) + GAIN_STD ** 2 * np.outer(beta, beta)
+    cov = (covariance(A, resid, tau[allsel]) + GAIN_STD ** 2 * np.outer(beta, beta)
            if blocks else np.zeros((0, 0)))
     if blocks:
-        _at_rest_check(ctx, A, beta, cov, y_all, idx[allsel], tau[allsel],
+        at_rest_check(ctx, A, beta, cov, y_all, idx[allsel], tau[allsel],
                        [sl for (eff, _, _), sl in zip(chosen, slices)
                         if eff.name not in TIME_LOCKED])
-    var_all = _residual_variance(resid, tau[allsel])
+    var_all = residual_variance(resid, tau[allsel])
     series_idx = idx[allsel]
     contribs = {}
     for f, (eff, nl, labels), sl in zip(findings, chosen, slices):
         contrib = blocks[slices.index(sl)] @ beta[sl]
         contribs[f.effect] = contrib
-        f.parameters, f.unseen, f.uncertainty, f.undetermined = _seen_parameters(
+        f.parameters, f.unseen, f.uncertainty, f.undetermined = seen_parameters(
             eff, blocks[slices.index(sl)], beta[sl], labels, nl, ctx, cov[sl, sl])
         searched = [k for k, v in f.parameters.items() if isinstance(v, float)
                     and k not in f.uncertainty and isinstance(nl.get(k), float)]
         if searched:
-            std, lost, spill = _searched_std(eff, nl, searched, labels, ctx, S_all,
+            std, lost, spill = searched_std(eff, nl, searched, labels, ctx, S_all,
                                              np.delete(A, np.arange(A.shape[1])[sl], axis=1),
                                              y_all, var_all)
             for k, v in spill.items():
@@ -1861,7 +1862,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             f.undetermined += lost
             f.parameters = {k: v for k, v in f.parameters.items() if k not in lost}
         f.contribution_rms_um = rms(contrib)
-        f.where = _where(ctx, series_idx, tau[allsel], contrib)
+        f.where = locate(ctx, series_idx, tau[allsel], contrib)
         # mimics: which other effects reproduce this finding's own signal
         sig = contrib[np.isin(allsel, tr)]
         tot = float(sig @ sig)
@@ -1877,7 +1878,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
             C2, labels2 = other.columns(ctx, S_tr, nl2)
             if C2.shape[1] == 0:
                 continue
-            c2 = _solve(C2, sig)
+            c2 = solve(C2, sig)
             if not other.physical(c2) or other.implausible(other.parameters(c2, labels2, nl2, ctx)):
                 continue  # only with parameters no machine has: not a mimic
             r2 = 1.0 - float(((sig - C2 @ c2) ** 2).sum()) / tot
@@ -1890,13 +1891,13 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                 if any(m["effect"] == other for m in f.mimics):
                     f.ambiguous_with = [other]
                     f.separate_by = how
-        _confidence(f)
-    findings = _merge_aliased(findings, contribs, ctx, series_idx, tau[allsel])
+        judge_confidence(f)
+    findings = merge_aliased(findings, contribs, ctx, series_idx, tau[allsel])
     gap_rms = rms(gap)
     un_rms = rms(resid)
     unexplained = {"rms_um": un_rms, "noise_um": noise,
                    "significant": bool(un_rms > 1.25 * noise and un_rms - noise > 0.05),
-                   "where": _where(ctx, series_idx, tau[allsel], resid, noise=noise)}
+                   "where": locate(ctx, series_idx, tau[allsel], resid, noise=noise)}
     # would smooth geometry outside the library fit the held-out data better than the
     # geometric findings do?  Then they may only stand in for it: say so.
     geo_doubt = None
@@ -1906,7 +1907,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
         A_tr = np.column_stack([cols_tr[j] for j in ranked] + [G_tr]) if G_tr.shape[1] else None
         if A_tr is not None:
             A_ho = np.column_stack([cols_ho[j] for j in ranked] + [G_ho])
-            beta = _solve(A_tr, y_tr)
+            beta = solve(A_tr, y_tr)
             with_geo = float(np.mean((y_ho - A_ho @ beta) ** 2))
             base_ho = findings[-1].heldout_rms_after_um ** 2 if findings else float(np.mean(y_ho ** 2))
             gain = base_ho - with_geo
@@ -1915,7 +1916,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                 for f in findings:
                     if f.effect in GEOMETRIC:
                         f.geometry_doubt = True
-                        _confidence(f)
+                        judge_confidence(f)
     unexplained["geometry_beyond_library_um"] = geo_doubt
     if geo_doubt is not None:
         unexplained["significant"] = True
@@ -1923,7 +1924,7 @@ def _explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndar
                                "or angular errors) explains held-out data better than the "
                                "geometric findings: identify it with sdit-path identify")
     gap_info = {"rms_um": gap_rms, "max_abs_um": float(np.max(np.abs(gap))) if len(gap) else 0.0,
-                "where": _where(ctx, idx, tau, gap, noise=noise, detail=True)}
+                "where": locate(ctx, idx, tau, gap, noise=noise, detail=True)}
     return Diagnosis("", al, gap_info, findings, unexplained, noise,
                      {"in_program": int(len(sel)), "fitted": int(len(tr)), "heldout": int(len(ho)),
                       "dropouts": int((~np.isfinite(y)).sum())},
@@ -1973,7 +1974,7 @@ PROGRAM_ALIASED = {frozenset({"scale_mismatch", "squareness"}):
 TIMING_ALIASED = (LAG_SMOOTHING,)
 
 
-def _merge_aliased(findings: list, contribs: dict, ctx: Context, idx: np.ndarray,
+def merge_aliased(findings: list, contribs: dict, ctx: Context, idx: np.ndarray,
                    tau: np.ndarray) -> list:
     """Two effects this recording cannot tell apart, both selected, are one finding:
     the first named, the other in ``ambiguous_with``, their joint contribution and
@@ -1986,7 +1987,7 @@ def _merge_aliased(findings: list, contribs: dict, ctx: Context, idx: np.ndarray
         keep, drop = both
         joint = contribs[keep.effect] + contribs[drop.effect]
         keep.contribution_rms_um = float(np.sqrt(np.mean(joint * joint)))
-        keep.where = _where(ctx, idx, tau, joint)
+        keep.where = locate(ctx, idx, tau, joint)
         keep.parameters = {**keep.parameters,
                            **{f"{drop.effect}.{k}": v for k, v in drop.parameters.items()}}
         keep.unseen = keep.unseen + [f"{drop.effect}.{k}" for k in drop.unseen]
@@ -1998,12 +1999,12 @@ def _merge_aliased(findings: list, contribs: dict, ctx: Context, idx: np.ndarray
         keep.ambiguous_with, keep.separate_by = [drop.effect], how
         keep.mimics = [m for m in keep.mimics if m["effect"] != drop.effect] + [
             {"effect": drop.effect, "r2": 1.0}]
-        _confidence(keep)
+        judge_confidence(keep)
         findings = [f for f in findings if f is not drop]
-    return _pair_ambiguity(findings)
+    return pair_ambiguity(findings)
 
 
-def _pair_ambiguity(findings: list) -> list:
+def pair_ambiguity(findings: list) -> list:
     """One of an aliased pair selected, the other reproducing it (a listed mimic, or a
     runner-up with nearly the same evidence): the recording cannot tell them apart
     either, and the finding names both.  One of a pair only some programs tell apart
@@ -2020,12 +2021,12 @@ def _pair_ambiguity(findings: list) -> list:
             if any(m["effect"] == other for m in f.mimics) or (
                     f.runner_up == other and f.runner_up_ratio < AMBIGUOUS_RATIO):
                 f.ambiguous_with, f.separate_by = [other], how
-                _confidence(f)
+                judge_confidence(f)
         for pair, how in PROGRAM_ALIASED.items():
             if (not f.ambiguous_with and {f.effect, f.runner_up} == pair
                     and f.runner_up_ratio < AMBIGUOUS_RATIO):
                 f.ambiguous_with, f.separate_by = [f.runner_up], how
-                _confidence(f)
+                judge_confidence(f)
     return findings
 
 
@@ -2043,7 +2044,7 @@ def timing_is_weak(al: Alignment, offset_s: float = 0.002, clock_ppm: float = 5.
     return not (al.offset_std_s <= offset_s and al.clock_std_ppm <= clock_ppm)
 
 
-def _confidence(f: Finding) -> None:
+def judge_confidence(f: Finding) -> None:
     """high: it holds on held-out segments and nothing else explains it as well;
     medium: a mimic or a close runner-up, or weaker on held-out data; low: barely
     generalises."""
@@ -2079,7 +2080,7 @@ def _windows(tau: np.ndarray, flag: np.ndarray, min_gap_s: float = 0.5, limit: i
     return [[round(float(a), 3), round(float(b), 3)] for a, b in sorted(wins)]
 
 
-def _where(ctx: Context, idx: np.ndarray, tau: np.ndarray, signal: np.ndarray,
+def locate(ctx: Context, idx: np.ndarray, tau: np.ndarray, signal: np.ndarray,
            noise: float | None = None, detail: bool = False) -> dict:
     """Where ``signal`` lives: segments (RMS per segment, the strongest), phases,
     near axis reversals or away from them, and time windows (program time)."""

@@ -21,8 +21,8 @@ import numpy as np
 from ..errormodel.chain import sensitivities
 from ..errormodel.model import ModelOptions, build_model
 from ..machine.kinematics import Kinematics
-from .align import _at
-from .context import Context, _directions, reversals
+from .align import sample_at
+from ..reading.context import Context, directions, reversals
 
 STICK_SLIP_SPEED_MM_PER_S = 200.0 / 60.0
 
@@ -77,7 +77,7 @@ def _memo(cache: dict, ctx: Context, value: float, make, digits: int = 9):
     return cache[key][1]
 
 
-def _proj_gain(cols: np.ndarray, r: np.ndarray) -> float:
+def projection_gain(cols: np.ndarray, r: np.ndarray) -> float:
     """Reduction of ``|r|^2`` by least squares on ``cols`` (fitted beside
     :func:`fitted_beside`'s columns, if any)."""
     if cols.size == 0:
@@ -181,7 +181,7 @@ class Effect:
     searches_with_fixed: bool = False
     #: the effect's shape may hold the recording's timing (pulses after reversals on a
     #: trace with little else), and its shape and the start trade with each other: its
-    #: search is repeated with the effect shifted in time (``diagnose._shape_scan``)
+    #: search is repeated with the effect shifted in time (``diagnose.shape_scan``)
     shape_holds_timing: bool = False
 
     #: how the effect's reading changes when the same path is run again: in the reverse
@@ -199,7 +199,7 @@ class Effect:
         """Grid samples where the effect's model, as found (``params``: its sizes by
         label), leaves the reading open - a fine structure not locked to the program -
         or None.  The timing is read again without them and the two readings compared
-        (``diagnose._settle``)."""
+        (``diagnose.settle``)."""
         return None
 
     def implausible(self, params: dict) -> str | None:
@@ -296,11 +296,11 @@ class ServoLag(Effect):
         # a fixed grid (cached across steps): every third value, then the neighbours
         g = self.grid_ms
         coarse = list(range(0, len(g), 3))
-        gains = {i: _proj_gain(self.shrink_um(ctx, s.idx, g[i])[:, None], r) for i in coarse}
+        gains = {i: projection_gain(self.shrink_um(ctx, s.idx, g[i])[:, None], r) for i in coarse}
         best = max(gains, key=gains.get)
         for i in range(max(best - 2, 0), min(best + 3, len(g))):
             if i not in gains:
-                gains[i] = _proj_gain(self.shrink_um(ctx, s.idx, g[i])[:, None], r)
+                gains[i] = projection_gain(self.shrink_um(ctx, s.idx, g[i])[:, None], r)
         return {"tau_ms": g[max(gains, key=gains.get)]}
 
     def columns(self, ctx, s, nl):
@@ -379,7 +379,7 @@ class ServoMismatch(Effect):
         if not self._axes(ctx)[0]:
             return None
         nl = {"common_lag_ms": _grid_search(
-            self.grid_ms, lambda c: _proj_gain(self.columns(ctx, s, {"common_lag_ms": c})[0], r),
+            self.grid_ms, lambda c: projection_gain(self.columns(ctx, s, {"common_lag_ms": c})[0], r),
             np.linspace)}
         # the lag differences' second order (d^2 times the axis' acceleration) needs the
         # differences themselves: iterated to them, like a play's width
@@ -483,7 +483,7 @@ class Backlash(Effect):
         for j in linear_axes(ctx):
             if not len(ctx.reversal_times[j]):
                 continue
-            g = [_proj_gain(self._col(ctx, s, j, b)[:, None], r) for b in self.grid_um]
+            g = [projection_gain(self._col(ctx, s, j, b)[:, None], r) for b in self.grid_um]
             if max(g) <= NEGLIGIBLE * float(r @ r):
                 # an axis the bar barely sees here (Z on a level bar): its play column,
                 # fitted on noise, takes an absurd size and wrecks the held-out stretches
@@ -619,7 +619,7 @@ class ReversalSpike(Effect):
         faster than ``onset`` (mm/s) the other way, and the direction since then."""
         key = ("reversal_onset", j, onset)
         if key not in ctx._slow:
-            d = _directions(ctx.qdot[:, [j]], onset)[:, 0]
+            d = directions(ctx.qdot[:, [j]], onset)[:, 0]
             _, last = reversals(d)
             since = np.where(last >= 0, ctx.t_s - ctx.t_s[np.maximum(last, 0)], np.inf)
             ctx._slow[key] = (since, d)
@@ -635,12 +635,12 @@ class ReversalSpike(Effect):
         return np.column_stack(cols)
 
     def _scorer(self, ctx, s, r, onset):
-        """``score(tau_ms, rise_ms)``: :func:`_proj_gain` of the pulses' columns, from
+        """``score(tau_ms, rise_ms)``: :func:`projection_gain` of the pulses' columns, from
         the samples within a second of a reversal only (beyond it the longest pulse has
         decayed to e^-10) and the columns' 3 x 3 normal equations; None without them
         (or with :func:`fitted_beside`'s basis, which needs every sample)."""
         if _BESIDE.get() is not None:
-            return lambda t, q: _proj_gain(self._cols(ctx, s, t, onset, q), r)
+            return lambda t, q: projection_gain(self._cols(ctx, s, t, onset, q), r)
         since, weight = [], []
         for j in linear_axes(ctx):
             sj, d = self._since(ctx, j, onset)
@@ -833,7 +833,7 @@ class Vibration(Effect):
         # every axis filtered at once and read at the samples with one interpolation
         # (the grid is uniform): np.interp per axis took as long as the filter
         x = _mode_response(self._accs(ctx, axes), dt, f_hz, zeta)
-        return ctx.gain[idx][:, axes] * _at(ctx.t_s, x, tau)
+        return ctx.gain[idx][:, axes] * sample_at(ctx.t_s, x, tau)
 
     def _accs(self, ctx, axes):
         key = ("axis_accelerations", tuple(axes))
@@ -927,7 +927,7 @@ class Vibration(Effect):
         # accelerations ramp slower than the mode rings, the deflection is nearly all of
         # it (a 0.85 um per m/s^2 mode at 79 Hz: 366 in chi-square, the ringing noise),
         # and the axis chosen by its ringing alone was one without a mode.
-        static = np.array([_proj_gain(base[:, 2 * n][:, None], rs) for n in range(len(axes))])
+        static = np.array([projection_gain(base[:, 2 * n][:, None], rs) for n in range(len(axes))])
         k = int(np.argmax(static + ring.max(axis=0)))
         if ring[:, k].max() < RINGING_READ * float(rp @ rp) / len(rp):
             # its ringing is below the noise: the mode's frequency and damping are not
@@ -1088,7 +1088,7 @@ class StickSlip(Effect):
 
     def search(self, ctx, s, r):
         return {"stick_um": _grid_search(
-            self.grid_um, lambda p: _proj_gain(self._cols(ctx, s, p), r), np.geomspace)}
+            self.grid_um, lambda p: projection_gain(self._cols(ctx, s, p), r), np.geomspace)}
 
     def columns(self, ctx, s, nl):
         return self._cols(ctx, s, nl["stick_um"]), tuple(
@@ -1223,8 +1223,8 @@ class ContourSmoothing(Effect):
             ctx, sigma_ms * 1e-3).astype(np.float32))[idx].astype(float)
 
     def search(self, ctx, s, r):
-        space = lambda w: _proj_gain(self.shortcut_um(ctx, s.idx, w)[:, None], r)  # noqa: E731
-        time = lambda q: _proj_gain(self.filtered_um(ctx, s.idx, q)[:, None], r)  # noqa: E731
+        space = lambda w: projection_gain(self.shortcut_um(ctx, s.idx, w)[:, None], r)  # noqa: E731
+        time = lambda q: projection_gain(self.filtered_um(ctx, s.idx, q)[:, None], r)  # noqa: E731
         w = _grid_search(self.grid_mm, space, np.linspace)
         q = _grid_search(self.sigma_grid_ms, time, np.geomspace)
         return {"window_mm": w} if space(w) >= time(q) else {"sigma_ms": q}

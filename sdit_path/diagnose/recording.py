@@ -19,10 +19,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import RecordingError
-from ..planfiles import PlanFiles
-from ..sim.simulate import Trace
+from ..plan.files import PlanFiles
+from ..reading.trace import Trace
 from .align import Alignment, AlignmentError, align, check_span
-from .context import build_context
+from ..reading.context import build_context
 from .diagnose import alignment_columns, expected_reading, noise_estimate
 
 #: a residual this many times the recording's own noise (and 0.5 um above it) is not

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from .context import Context
+from ..reading.context import Context
 from .diagnose import Diagnosis, timing_is_weak
 from .effects import EFFECT_NAMES
 

@@ -160,12 +160,6 @@ class TrackCurve:
             [ce * np.cos(a), ce * np.sin(a), np.full_like(a, math.sin(self.elevation_rad))], axis=-1)
 
 
-def curve_length(curve, samples: int = 4001) -> float:
-    """Arc length (mm) by dense chords; relative error ~1e-8 for these smooth curves."""
-    p = curve(np.linspace(0.0, 1.0, samples))
-    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
-
-
 def tangent(curve, t: float, h: float = 1e-6) -> np.ndarray:
     """Unit tangent at ``t`` by central (or one-sided at the ends) differences."""
     a, b = max(0.0, t - h), min(1.0, t + h)

@@ -20,11 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..arrays import frozen
 import scipy.sparse.linalg as spla
 from scipy.interpolate import BSpline, CubicSpline
 
+from ..arrays import frozen
 from ..errors import PlanError
+from ..fixed_point import round_to_decimals
 
 
 
@@ -173,12 +174,6 @@ def _unit(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     if n == 0.0:
         v, n = fallback, np.linalg.norm(fallback)
     return v / n
-
-
-def round_to_decimals(values: np.ndarray, decimals: int) -> np.ndarray:
-    """Round exactly as the post-processors print: via fixed-point text."""
-    flat = [float(f"{v:.{decimals}f}") + 0.0 for v in np.asarray(values, dtype=float).ravel()]
-    return np.array(flat).reshape(np.shape(values))
 
 
 def _fit_once(pieces: list[_Piece], degree: int, counts: list[int], start: np.ndarray,

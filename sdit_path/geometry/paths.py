@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config import Config
+from ..config import Config, TestConfig
 from .curves import MeridianCurve, TrackCurve, WaveCurve
 from .hemisphere import TOP, Hemisphere, Layer
 from .nurbs import BSplineCurve, FittedRun, fit_run
@@ -44,13 +44,17 @@ class PathPiece:
 class Run:
     """Motion along one spline, from a dwell (or a mounting point) to the next.
     ``start_node``/``end_node`` are static node ids, or ``""`` where the run starts or
-    ends between segments (next to a segment left out)."""
+    ends between segments (next to a segment left out).  ``feed_mm_per_min`` is the
+    run's programmed feed, worked out once here (``TestConfig.run_feed``: a re-planned
+    sector at its own feed, everything else at the test's) and read by the reach
+    check, the timing and the program alike."""
 
     curve: BSplineCurve
     pieces: tuple[PathPiece, ...]
     start_node: str
     end_node: str
     direction: str  # "forward", "reverse" or "transit"
+    feed_mm_per_min: float
 
     @property
     def length_mm(self) -> float:
@@ -70,7 +74,8 @@ class Run:
         pieces = tuple(PathPiece(rename(p), p.kind, a + b - p.u_end, a + b - p.u_start,
                                  p.length_mm, p.max_radial_deviation_mm)
                        for p in reversed(self.pieces))
-        return Run(self.curve.reversed(), pieces, self.end_node, self.start_node, direction)
+        return Run(self.curve.reversed(), pieces, self.end_node, self.start_node, direction,
+                   self.feed_mm_per_min)
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,11 +133,11 @@ class LayerPath:
 
 
 def _run_from_fit(fit: FittedRun, ids: list[str], kinds: list[str], start: str, end: str,
-                  direction: str) -> Run:
+                  direction: str, test: TestConfig) -> Run:
     pieces = tuple(PathPiece(i, k, lo, hi, length, dev) for i, k, (lo, hi), length, dev in
                    zip(ids, kinds, fit.piece_ranges, fit.piece_lengths_mm,
                        fit.piece_max_deviation_mm))
-    return Run(fit.curve, pieces, start, end, direction)
+    return Run(fit.curve, pieces, start, end, direction, test.run_feed(pieces))
 
 
 class PathBuilder:
@@ -157,7 +162,7 @@ class PathBuilder:
         b = h.node(end).position_mm if isinstance(end, str) else end
         fit = fit_run(curves, h.centre_mm, h.radius_mm, a, b, label=label, **self._fit_kw)
         return _run_from_fit(fit, ids, kinds, start if isinstance(start, str) else "",
-                             end if isinstance(end, str) else "", direction)
+                             end if isinstance(end, str) else "", direction, self.config.test)
 
     def _wave(self, layer: Layer, seg) -> WaveCurve:
         h, t = self.hemi, self.config.test

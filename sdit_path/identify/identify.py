@@ -37,8 +37,9 @@ from ..errormodel.model import ErrorModel, ModelOptions, build_model, prior_scal
 from ..errors import ConfigError, RecordingError
 from ..machine.kinematics import Kinematics
 from ..machine.schedule import RotarySchedule
-from ..planfiles import PlanFiles
-from ..sim.simulate import Trace, axis_values_rad
+from ..plan.files import PlanFiles
+from ..reading.trace import Trace
+from ..timing.trajectory import axis_values_rad
 
 DETERMINED = 0.5  # standard uncertainty below this share of the prior magnitude
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config import Config
+from ..config import Config, Reader
 from .kinematics import Kinematics
 from .poses import RunPoses
 
@@ -75,7 +75,7 @@ def reach_violations(poses: RunPoses, config: Config, kin: Kinematics) -> dict[i
     out: dict[int, list[Violation]] = {}
     margin_lin = config.check.travel_margin_mm
     margin_rot = config.check.angle_margin_rad
-    feed = config.test.run_feed(poses.run.pieces) / 60.0
+    feed = poses.run.feed_mm_per_min / 60.0
     q, pts, piece = poses.q, poses.points_mm, poses.piece
     ds = np.diff(poses.s_mm)
     for j, ax in enumerate(kin.axes):
@@ -101,3 +101,22 @@ def reach_violations(poses: RunPoses, config: Config, kin: Kinematics) -> dict[i
                     "rotary_rate", ax.name, np.degrees(rate[w]), np.degrees(ax.max_velocity),
                     np.degrees(rate[w] - ax.max_velocity), "deg/s", _point(pts[w + 1])))
     return out
+
+
+def check_pivot(config: Config) -> None:
+    """The tool ball must be able to reach the pivot position itself (rotary axes at
+    their locked angles): a pivot outside the travel is a config mistake, a
+    :class:`~sdit_path.errors.ConfigError` naming the file, the line and the axis."""
+    machine, ballbar, test = config.machine, config.ballbar, config.test
+    kin = Kinematics(machine)  # the chain is the one source of truth
+    angles = dict(test.rotary.locked_rad)
+    q = kin.inverse([ballbar.pivot_mm], {n: [v] for n, v in angles.items()})
+    for j, ax in enumerate(kin.axes):
+        lo, hi = ax.travel
+        v = float(q[0, j])
+        if not lo - 1e-9 <= v <= hi + 1e-9:
+            raise Reader(config.source, config.text).fail(
+                "ballbar.pivot_mm",
+                f"pivot {list(ballbar.pivot_mm)} mm needs {ax.name}={ax.to_display(v):.3f} "
+                f"{ax.unit}, outside the {ax.name} travel [{ax.to_display(lo):g}, "
+                f"{ax.to_display(hi):g}] {ax.unit} (machine.axes.{ax.name})")

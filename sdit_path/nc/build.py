@@ -10,7 +10,7 @@ import numpy as np
 
 from ..config import Config
 from ..geometry.hemisphere import Hemisphere
-from ..geometry.nurbs import round_to_decimals
+from ..fixed_point import round_to_decimals
 from ..geometry.paths import Dwell as PathDwell
 from ..geometry.nurbs import BSplineCurve
 from ..geometry.paths import LayerPath, Remount, Run
@@ -125,7 +125,7 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
             continue
         run: Run = item
         label = f"layer {path.layer}"
-        run_f = test.run_feed(run.pieces)  # a re-planned sector at its own feed
+        run_f = run.feed_mm_per_min  # a re-planned sector at its own feed
         if frame in ("table", "traori") and path_form == "spline":
             rotary = ()
             if frame == "traori":

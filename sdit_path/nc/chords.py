@@ -14,7 +14,8 @@ import math
 import numpy as np
 
 from ..errors import PlanError
-from ..geometry.nurbs import BSplineCurve, round_to_decimals
+from ..fixed_point import round_to_decimals
+from ..geometry.nurbs import BSplineCurve
 
 
 def chord_deviation(a: np.ndarray, b: np.ndarray, centre_mm: np.ndarray,

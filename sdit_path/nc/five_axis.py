@@ -25,7 +25,8 @@ import scipy.sparse.linalg as spla
 from scipy.interpolate import BSpline
 
 from ..errors import PlanError
-from ..geometry.nurbs import BSplineCurve, round_to_decimals
+from ..fixed_point import round_to_decimals
+from ..geometry.nurbs import BSplineCurve
 from ..geometry.paths import Run
 from ..machine.kinematics import Kinematics
 from ..machine.schedule import RotarySchedule

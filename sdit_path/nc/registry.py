@@ -7,6 +7,8 @@ from importlib import import_module
 from importlib.metadata import entry_points
 from typing import Protocol
 
+from ..config import Config, Reader
+from ..config.reader import short
 from ..errors import UnknownControllerError
 from .program import Program
 
@@ -46,3 +48,15 @@ def get_postprocessor(name: str) -> PostProcessor:
         raise UnknownControllerError(name, list(known))
     module, _, attr = known[name].partition(":")
     return getattr(import_module(module), attr)()
+
+
+def check_controllers(config: Config) -> None:
+    """Every controller ``post.controllers`` names must be registered: a
+    :class:`~sdit_path.errors.ConfigError` naming the file, the line and the known names
+    otherwise (the registry is the one source of names)."""
+    known = known_controllers()
+    for name in config.post.controllers:
+        if name not in known:
+            raise Reader(config.source, config.text).fail(
+                "post.controllers", f"unknown controller {short(name)}; known controllers: "
+                                    f"{', '.join(sorted(known))}")

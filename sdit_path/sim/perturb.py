@@ -20,12 +20,16 @@ from ..errormodel.errorset import ErrorSet
 from ..errormodel.model import ModelOptions, build_model, values_vector
 from ..errors import ConfigError
 from ..machine.kinematics import Kinematics
-from ..planfiles import PlanFiles
-from ..diagnose.context import Context, build_context
-from ..diagnose.effects import EFFECT_NAMES
-from .simulate import Trace
+from ..plan.files import PlanFiles
+from ..reading.context import Context, build_context
+from ..reading.trace import Trace
 
-IN_LIBRARY = EFFECT_NAMES
+#: the effects of the diagnosis library this simulator has physics for, in the library's
+#: order (the seeded draws pick from it by position); the diagnosis never reaches back
+#: here, and ``tests/test_architecture.py`` checks that the two name the same effects
+IN_LIBRARY = ("setup_offset", "bar_length", "thermal_drift", "servo_lag", "servo_mismatch",
+              "backlash", "reversal_spike", "lateral_play", "cyclic_error", "vibration",
+              "stick_slip", "squareness", "scale_mismatch", "contour_smoothing")
 OUTSIDE = ("bump", "step", "straightness", "vibration_burst")
 
 
@@ -389,16 +393,6 @@ def perturb(plan: PlanFiles, program: str, model: ErrorSet | None, effects: list
     empty = np.full(len(y), "", dtype=object)
     trace = Trace(tm, y, empty, empty, header)
     return trace, Truth(tuple(effects), recording, contributions)
-
-
-def measured_csv(trace: Trace) -> str:
-    """The instrument's file: header lines, ``t_s,delta_l_um`` only."""
-    lines = [f"# {k}: {v}" for k, v in trace.header.items()]
-    lines.append("t_s,delta_l_um")
-    vals = ["" if not np.isfinite(v) else f"{v:.3f}" for v in trace.delta_l_um]
-    ts = [f"{v:.3f}" for v in trace.t_s]
-    lines.extend(f"{a},{b}" for a, b in zip(ts, vals))
-    return "\n".join(lines) + "\n"
 
 
 def truth_json(truth: Truth) -> dict:

@@ -6,13 +6,11 @@ the actual pivot centre (nominal pivot plus the ball-centring offset) minus its
 length, plus a bar-length offset, Gaussian sensor noise and the instrument's
 quantisation.  Samples where the bar is off (repositioning) are dropouts (empty).
 
-The trace file: ``# key: value`` lines (program, sample rate; never the truth), then
-``t_s,delta_l_um,segment,phase``.
+The trace file (:func:`sdit_path.reading.recording.trace_csv`): ``# key: value`` lines
+(program, sample rate; never the truth), then ``t_s,delta_l_um,segment,phase``.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -21,27 +19,9 @@ from ..errormodel.errorset import ErrorSet
 from ..errormodel.model import build_model, values_vector
 from ..errors import ConfigError
 from ..machine.kinematics import Kinematics
-from ..planfiles import PlanFiles
-
-
-@dataclass(frozen=True, slots=True)
-class Trace:
-    """``t_s, delta_l_um : (n,)`` (NaN = dropout); labels from the trajectory."""
-
-    t_s: np.ndarray
-    delta_l_um: np.ndarray
-    segment: np.ndarray
-    phase: np.ndarray
-    header: dict
-
-
-def axis_values_rad(traj, kin: Kinematics) -> np.ndarray:
-    """Trajectory axis columns as internal values (mm, rad) in kinematics order."""
-    q = np.zeros((len(traj.t_s), len(kin.names)))
-    for col, name in enumerate(traj.axis_names):
-        v = traj.axes[:, col]
-        q[:, kin.index[name]] = np.radians(v) if kin.axes[kin.index[name]].is_rotary else v
-    return q
+from ..plan.files import PlanFiles
+from ..reading.trace import Trace
+from ..timing.trajectory import axis_values_rad
 
 
 def error_values(plan: PlanFiles, errors: ErrorSet):
@@ -77,16 +57,3 @@ def simulate_trace(plan: PlanFiles, program: str, errors: ErrorSet,
     header = {"program": program, "sample_rate_hz": f"{rate:.6g}",
               "bar_length_mm": f"{cfg.ballbar.bar_length_mm:g}", "source": "sdit-path simulate"}
     return Trace(traj.t_s, dl, traj.segment, traj.phase, header)
-
-
-def trace_csv(trace: Trace) -> str:
-    lines = [f"# {k}: {v}" for k, v in trace.header.items()]
-    lines.append("t_s,delta_l_um,segment,phase")
-    n = len(trace.t_s)
-    table = np.empty((n, 4), dtype=object)
-    table[:, 0] = trace.t_s
-    table[:, 1] = [("" if not np.isfinite(v) else f"{v:.4f}") for v in trace.delta_l_um]
-    table[:, 2] = trace.segment
-    table[:, 3] = trace.phase
-    lines.append((("%.4f,%s,%s,%s\n" * n)[:-1]) % tuple(table.ravel()))
-    return "\n".join(lines) + "\n"

@@ -8,8 +8,8 @@ left-out segments (bar off) it repositions along straight lines, rest to rest.  
 program's own first positioning move (from wherever the machine was) is not part of
 the trajectory: time 0 is the start of the first dwell.
 
-``sample`` turns a timed layer into arrays at a fixed rate; ``to_csv`` into the
-trajectory file: ``t_s``, the ball centre in the table frame (``ball_x_mm`` ...), every
+``sample`` turns a timed layer into arrays at a fixed rate (written as the
+trajectory file by :mod:`sdit_path.plan.trajectory_csv`): ``t_s``, the ball centre in the table frame (``ball_x_mm`` ...), every
 machine axis (``axis_X_mm`` ... ``axis_C_deg``), ``segment``, ``phase`` (accelerate,
 cruise, decelerate, dwell, reposition) and ``path_speed_mm_per_s``.
 """
@@ -17,21 +17,18 @@ cruise, decelerate, dwell, reposition) and ``path_speed_mm_per_s``.
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import BSpline, make_interp_spline
 
 from ..config import Config
-from ..geometry.nurbs import round_to_decimals
+from ..fixed_point import round_to_decimals
 from ..geometry.paths import Dwell, LayerPath, Remount, Run
 from ..machine.kinematics import Kinematics
 from ..machine.schedule import RotarySchedule
 from .limits import Budget, PathLimits, budget
 from .profile import PHASES, ChainProfile, Profile, plan_chain, plan_profile
-
-PHASE_NAMES = ("accelerate", "cruise", "decelerate", "dwell", "reposition")
 
 
 class RunGeometry:
@@ -181,12 +178,11 @@ class TimedLayer:
 class Timer:
     """Times layer paths for one configuration."""
 
-    def __init__(self, config: Config, kinematics: Kinematics | None = None,
-                 feed_mm_per_min: float | None = None):
+    def __init__(self, config: Config, kinematics: Kinematics | None = None):
         self.config = config
         self.kin = kinematics or Kinematics(config.machine)
         self.schedule = RotarySchedule(config, self.kin)
-        self.feed = (feed_mm_per_min or config.test.feed_mm_per_min) / 60.0
+        self.feed = config.test.feed_mm_per_min / 60.0
         axes = self.kin.axes
         self.v_lim = np.array([a.max_velocity for a in axes])
         self.a_lim = np.array([a.max_acceleration for a in axes])
@@ -311,8 +307,8 @@ class Timer:
             elif isinstance(item, Run):
                 geo = RunGeometry(item)
                 # a sector re-planned at its own feed runs at it
-                own = self.config.test.run_feed(item.pieces, self.feed * 60.0)
-                feed = self.feed if own == self.feed * 60.0 else own / 60.0
+                feed = (self.feed if item.feed_mm_per_min == self.config.test.feed_mm_per_min
+                        else item.feed_mm_per_min / 60.0)
                 prof, param, carry_out = self.time_run(geo, carry,
                                                        f"layer {path.layer}, {item.pieces[0].id}",
                                                        feed)
@@ -420,84 +416,10 @@ def _carry_at(timed: TimedLayer, k: int) -> float | None:
     return None
 
 
-def to_csv(samples: Samples, header: dict[str, str]) -> str:
-    """CSV text with ``# key: value`` lines first; numbers fixed-point."""
-    lines = [f"# {k}: {v}" for k, v in header.items()]
-    cols = (["t_s", "ball_x_mm", "ball_y_mm", "ball_z_mm"]
-            + [f"axis_{n}_{u}" for n, u in zip(samples.axis_names, samples.axis_units)]
-            + ["segment", "phase", "path_speed_mm_per_s"])
-    lines.append(",".join(cols))
-    num = np.column_stack([np.round(samples.t_s, 4), np.round(samples.ball_mm, 8),
-                           np.round(samples.axes, 10)]) + 0.0
-    n, k = num.shape
-    table = np.empty((n, k + 3), dtype=object)
-    table[:, :k] = num
-    table[:, k] = samples.segment
-    table[:, k + 1] = samples.phase
-    table[:, k + 2] = samples.speed_mm_per_s
-    # axis values carry 10 decimals so that third differences at 1 kHz resolve jerk
-    # (rounding noise 4 * 0.5e-10 / 1e-9 = 0.2 unit/s^3)
-    row = ",".join(["%.4f"] + ["%.8f"] * 3 + ["%.10f"] * (k - 4) + ["%s", "%s", "%.5f"]) + "\n"
-    lines.append((row * n)[:-1] % tuple(table.ravel()))
-    return "\n".join(lines) + "\n"
-
-
-def read_csv_file(path) -> Samples:
-    """Read a trajectory file from disk (pandas' C parser straight from the file)."""
-    import pandas as pd
-
-    from ..errors import SditError
-
-    try:
-        # a number column holding text ("nan" is not read as a value here) is named by
-        # the one-line error below; pandas' warning of mixed types must not print first
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", pd.errors.DtypeWarning)
-            df = pd.read_csv(path, comment="#", dtype={"segment": str, "phase": str},
-                             keep_default_na=False, engine="c")
-    except (ValueError, pd.errors.ParserError) as exc:
-        raise SditError(f"{path}: not a trajectory file written by sdit-path plan ({exc})") from None
-    return _samples(df, list(df.columns), str(path))
-
-
-def _samples(df, cols: list[str], source: str) -> Samples:
-    from ..errors import SditError
-
-    axis_cols = [c for c in cols if c.startswith("axis_")]
-    names = tuple(c.split("_")[1] for c in axis_cols)
-    units = tuple(c.split("_")[2] for c in axis_cols)
-    need = ["t_s", "ball_x_mm", "ball_y_mm", "ball_z_mm"] + axis_cols + ["path_speed_mm_per_s"]
-    try:
-        num = df[need].to_numpy(dtype=float)
-        seg, ph = df["segment"].to_numpy(dtype=object), df["phase"].to_numpy(dtype=object)
-    except (ValueError, KeyError) as exc:
-        raise SditError(f"{source}: not a trajectory file written by sdit-path plan ({exc})") from None
-    n_num = 4 + len(axis_cols)
-    return Samples(num[:, 0], num[:, 1:4], num[:, 4:n_num], seg, ph, num[:, -1], names, units)
-
-
-def read_csv(text: str, source: str = "<trajectory>") -> Samples:
-    """Read a trajectory file written by :func:`to_csv` back into :class:`Samples`."""
-    from ..errors import SditError
-
-    import io
-
-    head_end = 0
-    header = None
-    for line in io.StringIO(text):
-        head_end += len(line)
-        if line.strip() and not line.startswith("#"):
-            header = line.strip()
-            break
-    if header is None:
-        raise SditError(f"{source}: empty trajectory file")
-    cols = header.split(",")
-    import pandas as pd  # its C parser reads a one-hour trajectory in seconds
-
-    try:
-        df = pd.read_csv(io.StringIO(text[head_end:]), header=None, names=cols, comment="#",
-                         dtype={"segment": str, "phase": str}, keep_default_na=False,
-                         engine="c")
-    except (ValueError, pd.errors.ParserError) as exc:
-        raise SditError(f"{source}: not a trajectory file written by sdit-path plan ({exc})") from None
-    return _samples(df, cols, source)
+def axis_values_rad(traj: Samples, kin: Kinematics) -> np.ndarray:
+    """Trajectory axis columns as internal values (mm, rad) in kinematics order."""
+    q = np.zeros((len(traj.t_s), len(kin.names)))
+    for col, name in enumerate(traj.axis_names):
+        v = traj.axes[:, col]
+        q[:, kin.index[name]] = np.radians(v) if kin.axes[kin.index[name]].is_rotary else v
+    return q

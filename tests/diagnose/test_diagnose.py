@@ -11,13 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sdit_path.diagnose.context import build_context
+from sdit_path.reading.context import build_context
 from sdit_path.diagnose.diagnose import diagnose
 from sdit_path.diagnose.report import to_json
 from sdit_path.errormodel.errorset import load_error_set
-from sdit_path.planfiles import load_plan
-from sdit_path.sim.perturb import Hidden, Recording, measured_csv, perturb
-from sdit_path.sim.traceio import read_trace
+from sdit_path.plan.files import load_plan
+from sdit_path.reading.recording import measured_csv
+from sdit_path.sim.perturb import Hidden, Recording, perturb
+from sdit_path.reading.recording import read_trace
 
 PROGRAM = "SDIT_C"
 
@@ -358,10 +359,10 @@ def test_a_friction_pulse_is_found_with_its_rise(setup):
     assert pinned["onset_mm_s"] == 0.05
     # the search's scorer (the samples near a reversal, normal equations) gives the
     # projection gain of the whole columns
-    from sdit_path.diagnose.effects import _proj_gain
+    from sdit_path.diagnose.effects import projection_gain
 
     for tau, rise in ((30.0, 6.0), (100.0, 1.0), (5.0, 10.0)):
-        whole = _proj_gain(spike.columns(ctx, s, {**truth, "tau_ms": tau, "rise_ms": rise})[0], r)
+        whole = projection_gain(spike.columns(ctx, s, {**truth, "tau_ms": tau, "rise_ms": rise})[0], r)
         assert spike._scorer(ctx, s, r, 0.02)(tau, rise) == pytest.approx(whole, rel=1e-6)
 
 
@@ -393,7 +394,7 @@ def test_a_search_beside_the_set_up_judges_the_joint_fit():
     """Within ``fitted_beside``, a column's projection gain is what fitting it together
     with the basis' columns takes off the residual (a raw projection let the set-up keep
     a smoothing's shrink, and the smoothing's search chose its shortest filter)."""
-    from sdit_path.diagnose.effects import _proj_gain, fitted_beside
+    from sdit_path.diagnose.effects import projection_gain, fitted_beside
 
     rng = np.random.default_rng(3)
     G = rng.normal(size=(500, 4))
@@ -406,22 +407,22 @@ def test_a_search_beside_the_set_up_judges_the_joint_fit():
     r = y - G @ np.linalg.lstsq(G, y, rcond=None)[0]
     Q = np.linalg.svd(G, full_matrices=False)[0]
     with fitted_beside(Q):
-        joint = _proj_gain(c, r)
+        joint = projection_gain(c, r)
     assert joint == pytest.approx(rss(G) - rss(np.column_stack([G, c])), rel=1e-9)
-    assert abs(_proj_gain(c, r) - joint) > 1e-3 * joint  # outside the block: raw again
+    assert abs(projection_gain(c, r) - joint) > 1e-3 * joint  # outside the block: raw again
 
 
 def test_every_axis_reversals_are_both_fitted_and_held_out(setup):
     """An effect that acts only at an axis's reversals is seen by the fit and checked on
     held-out data: whatever the stagger of the stretches gives (here forced to hold out
     all of them, then none), each linear axis keeps reversals on both sides."""
-    from sdit_path.diagnose.diagnose import _balance_reversals, _held_stretches, _units
+    from sdit_path.diagnose.diagnose import _balance_reversals, held_stretches, stretch_numbers
     from sdit_path.diagnose.effects import linear_axes
 
     _, ctx, _ = setup
-    units = _units(ctx)
+    units = stretch_numbers(ctx)
     n_units = int(units.max()) + 1
-    for held in (_held_stretches(ctx, 3), _balance_reversals(ctx, np.ones(n_units, bool), 3),
+    for held in (held_stretches(ctx, 3), _balance_reversals(ctx, np.ones(n_units, bool), 3),
                  _balance_reversals(ctx, np.zeros(n_units, bool), 3)):
         checked = 0
         for j in linear_axes(ctx):
@@ -437,18 +438,18 @@ def test_every_axis_reversals_are_both_fitted_and_held_out(setup):
 def test_a_parameter_the_bar_cannot_see_is_not_reported():
     """A column the bar never sees stays at zero in the fit; that zero is no estimate:
     the parameter is left out of the finding and named as not seen."""
-    from sdit_path.diagnose.diagnose import _seen_parameters
+    from sdit_path.diagnose.diagnose import seen_parameters
     from sdit_path.diagnose.effects import ReversalSpike
 
     rng = np.random.default_rng(3)
     C = rng.normal(size=(200, 3))
     C[:, 1] = 0.0
     labels = ("height_X_um", "height_Y_um", "height_Z_um")
-    par, unseen, _, _ = _seen_parameters(ReversalSpike(), C, np.array([2.0, 0.0, -1.0]),
+    par, unseen, _, _ = seen_parameters(ReversalSpike(), C, np.array([2.0, 0.0, -1.0]),
                                          labels, {"tau_ms": 20.0}, None)
     assert unseen == ["height_Y_um"]
     assert par == {"tau_ms": 20.0, "height_X_um": 2.0, "height_Z_um": -1.0}
-    par, unseen, _, _ = _seen_parameters(ReversalSpike(), rng.normal(size=(200, 3)),
+    par, unseen, _, _ = seen_parameters(ReversalSpike(), rng.normal(size=(200, 3)),
                                          np.array([2.0, 0.5, -1.0]), labels, {"tau_ms": 20.0},
                                          None)
     assert unseen == [] and par["height_Y_um"] == 0.5
@@ -459,7 +460,7 @@ def test_stated_uncertainties_hold_and_undetermined_parameters_are_not_reported(
     sample (300 repeats: the errors over the stated uncertainties spread as 1); two
     columns the data cannot tell apart are not reported, and a lag read through a
     square root carries its uncertainty through it."""
-    from sdit_path.diagnose.diagnose import _covariance, _seen_parameters, _solve
+    from sdit_path.diagnose.diagnose import covariance, seen_parameters, solve
     from sdit_path.diagnose.effects import ReversalSpike, ServoLag
 
     rng = np.random.default_rng(11)
@@ -474,18 +475,18 @@ def test_stated_uncertainties_hold_and_undetermined_parameters_are_not_reported(
         for i in range(1, n):  # AR(1), rho 0.6: the plain formula would state 2 times too little
             e[i] = 0.6 * e[i - 1] + w[i]
         y = A @ true + e
-        beta = _solve(A, y)
-        z.append((beta - true) / np.sqrt(np.diag(_covariance(A, y - A @ beta, tau))))
+        beta = solve(A, y)
+        z.append((beta - true) / np.sqrt(np.diag(covariance(A, y - A @ beta, tau))))
     spread = np.std(z, axis=0)
     assert np.all((spread > 0.8) & (spread < 1.25)), spread
 
     # the same column twice: neither is determined apart from the other
     B = np.column_stack([A[:, 0], A[:, 1], A[:, 1]])
     y = B @ [1.0, 1.0, 1.0] + rng.normal(0.0, 0.1, n)
-    beta = _solve(B, y)
-    cov = _covariance(B, y - B @ beta, tau)
+    beta = solve(B, y)
+    cov = covariance(B, y - B @ beta, tau)
     labels = ("height_X_um", "height_Y_um", "height_Z_um")
-    par, unseen, std, undetermined = _seen_parameters(ReversalSpike(), B, beta, labels,
+    par, unseen, std, undetermined = seen_parameters(ReversalSpike(), B, beta, labels,
                                                       {"tau_ms": 20.0}, None, cov)
     assert undetermined == ["height_Y_um", "height_Z_um"] and unseen == []
     assert set(par) == {"tau_ms", "height_X_um"} and set(std) == {"height_X_um"}
@@ -494,7 +495,7 @@ def test_stated_uncertainties_hold_and_undetermined_parameters_are_not_reported(
     # tau = tau0 sqrt(c): its uncertainty is tau0 / (2 sqrt(c)) times c's
     C = A[:, :1]
     cov = np.array([[0.01 ** 2]])
-    par, _, std, _ = _seen_parameters(ServoLag(), C, np.array([0.81]), ("scale",),
+    par, _, std, _ = seen_parameters(ServoLag(), C, np.array([0.81]), ("scale",),
                                       {"tau_ms": 40.0}, None, cov)
     assert par["tau_ms"] == pytest.approx(36.0)
     assert std["tau_ms"] == pytest.approx(40.0 / (2 * 0.9) * 0.01, rel=1e-4)
@@ -542,17 +543,17 @@ def test_the_report_says_why_the_timing_is_wider_and_prints_each_uncertainty():
     parameter is printed with its uncertainty, or as found on a grid without one, and
     an undetermined one is named, not printed."""
     from sdit_path.diagnose.align import Alignment
-    from sdit_path.diagnose.diagnose import Diagnosis, Finding, _widened
+    from sdit_path.diagnose.diagnose import Diagnosis, Finding, widened
     from sdit_path.diagnose.report import summary_text
 
     al = Alignment(3.2, -80.0, 0.0008, 4.0, 0.3)
-    assert _widened(al, (0.0, 0.0), "nothing") is al
-    wide = _widened(al, (0.0024, 3.0), "read without the crawls, the start moved")
+    assert widened(al, (0.0, 0.0), "nothing") is al
+    wide = widened(al, (0.0024, 3.0), "read without the crawls, the start moved")
     assert wide.offset_std_s == pytest.approx(np.hypot(0.0008, 0.0024))
     assert wide.widened_by == ("read without the crawls, the start moved "
                                "(+- 2.40 ms, +- 3.0 ppm in quadrature)",)
     # a widening that moves neither uncertainty by 5 % is taken in, but not printed
-    slight = _widened(al, (0.0001, 0.5), "a negligible reason")
+    slight = widened(al, (0.0001, 0.5), "a negligible reason")
     assert slight.offset_std_s > al.offset_std_s and slight.widened_by == ()
     f = Finding("stick_slip", "saw-tooth", {"stick_um": 8.6, "mean_lag_X_um": 0.89,
                                             "amplitude_X_um": 0.15}, {"stick_um": 8.6},
@@ -576,8 +577,8 @@ def test_the_set_up_is_read_again_at_rest_where_a_dynamic_model_misses():
     difference.  With the right shape nothing is widened."""
     from types import SimpleNamespace
 
-    from sdit_path.diagnose.diagnose import GAIN_STD, _at_rest, _at_rest_check, _covariance, \
-        _solve
+    from sdit_path.diagnose.diagnose import GAIN_STD, _at_rest, at_rest_check, covariance, \
+        solve
 
     t = np.arange(30_000) * 1e-3
     moving = (t % 3.0) < 1.0  # 1 s of motion, then a 2 s dwell
@@ -590,10 +591,10 @@ def test_the_set_up_is_read_again_at_rest_where_a_dynamic_model_misses():
     A = np.column_stack([np.ones(len(t)), model])
     for shape, widened in ((truth, True), (model, False)):
         y = 0.2 + 0.5 * shape + rng.normal(0.0, 0.05, len(t))
-        beta = _solve(A, y)
-        cov = _covariance(A, y - A @ beta, t) + GAIN_STD ** 2 * np.outer(beta, beta)
+        beta = solve(A, y)
+        cov = covariance(A, y - A @ beta, t) + GAIN_STD ** 2 * np.outer(beta, beta)
         before = cov[0, 0]
-        _at_rest_check(ctx, A, beta, cov, y, np.arange(len(t)), t, [slice(0, 1)])
+        at_rest_check(ctx, A, beta, cov, y, np.arange(len(t)), t, [slice(0, 1)])
         if widened:
             assert abs(beta[0] - 0.2) > 3 * np.sqrt(before)  # the fit alone overstates
             assert abs(beta[0] - 0.2) <= 3 * np.sqrt(cov[0, 0])
@@ -632,7 +633,7 @@ def test_a_polished_alignment_that_explains_little_is_checked_against_its_neighb
     few ms apart, and Gauss-Newton stops in the nearest: polished from 12-20 ms off, a
     9.6 um backlash of the independent generator stayed there.  The scan of the
     neighbourhood finds the deeper minimum near the truth."""
-    from sdit_path.diagnose.align import _local_scan, generic_columns, refine
+    from sdit_path.diagnose.align import local_scan, generic_columns, refine
     from sdit_path.diagnose.diagnose import alignment_columns, expected_reading
 
     gen = _independent_generator()
@@ -648,7 +649,7 @@ def test_a_polished_alignment_that_explains_little_is_checked_against_its_neighb
     for d, e in ((-0.015, -35.0), (0.02, 40.0)):
         stuck = refine(ctx, X, t_m, y, off + d, ppm + e)
         assert abs(stuck.offset_s - off) > 0.010, "no local minimum: the test shows nothing"
-        found = _local_scan(ctx, X, t_m, y, stuck, 200.0)
+        found = local_scan(ctx, X, t_m, y, stuck, 200.0)
         assert found.rms_um < stuck.rms_um
         assert abs(found.offset_s - off) < 0.005 and abs(found.clock_ppm - ppm) < 20.0, found
 
@@ -721,7 +722,7 @@ def test_a_pulse_whose_shape_holds_the_timing_is_searched_with_its_reading_shift
     from types import SimpleNamespace
 
     from sdit_path.diagnose.align import generic_columns, refine
-    from sdit_path.diagnose.diagnose import (_model_columns, _shape_columns, _shape_scan,
+    from sdit_path.diagnose.diagnose import (model_columns, shape_columns, shape_scan,
                                              expected_reading, library, pose_blocks)
 
     gen = _independent_generator()
@@ -739,11 +740,11 @@ def test_a_pulse_whose_shape_holds_the_timing_is_searched_with_its_reading_shift
     pulse = SimpleNamespace(effect="reversal_spike",
                             nonlinear={"tau_ms": 33.0, "onset_mm_s": 0.1, "rise_ms": 10.0})
     X = generic_columns(ctx, expected, np.column_stack([
-        *pose, _model_columns(ctx, lib, expected, [pulse])[:, 2:],
-        _shape_columns(ctx, lib, [pulse])]))
+        *pose, model_columns(ctx, lib, expected, [pulse])[:, 2:],
+        shape_columns(ctx, lib, [pulse])]))
     stuck = refine(ctx, X, t_m, y, off - 0.012, ppm)
     assert stuck.offset_s - off < -0.008, "no valley: the test shows nothing"
-    taken, _, _ = _shape_scan(ctx, lib, expected, t_m, y, pose, [pulse], stuck, None)
+    taken, _, _ = shape_scan(ctx, lib, expected, t_m, y, pose, [pulse], stuck, None)
     assert taken is not None and taken.rms_um < stuck.rms_um
     assert abs(taken.offset_s - off) < 0.001, (taken, off)
     # the rise trades with the decay at this feed; it is no longer held at its grid's end

@@ -8,12 +8,12 @@ import pytest
 
 from sdit_path.diagnose import align as align_mod
 from sdit_path.diagnose.align import coarse, generic_columns, refine
-from sdit_path.diagnose.context import build_context
-from sdit_path.diagnose.diagnose import _TrialModel, alignment_columns, expected_reading
+from sdit_path.reading.context import build_context
+from sdit_path.diagnose.diagnose import TrialModel, alignment_columns, expected_reading
 from sdit_path.diagnose.effects import Samples, ServoMismatch, Vibration, _mode_response, \
     linear_axes
 from sdit_path.errormodel.errorset import load_error_set
-from sdit_path.planfiles import load_plan
+from sdit_path.plan.files import load_plan
 from sdit_path.sim.perturb import Hidden, Recording, perturb
 
 PROGRAM = "GOLD_A"
@@ -71,7 +71,7 @@ def test_a_profiled_lag_overwrites_the_same_matrix(recorded):
     fixed = alignment_columns(plan, ctx, pose_only=True)
     allg = Samples(np.arange(ctx.n), ctx.t_s)
     eff = ServoMismatch()
-    model = _TrialModel(ctx, expected, fixed)
+    model = TrialModel(ctx, expected, fixed)
     for lag in (0.0, 10.0, 40.0, 3.0):
         cols = eff.columns(ctx, allg, {"common_lag_ms": lag})[0]
         fresh = generic_columns(ctx, expected, np.column_stack([fixed, cols]))

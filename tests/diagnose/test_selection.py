@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from sdit_path.analyse import DIAGNOSIS
-from sdit_path.diagnose.context import build_context
-from sdit_path.diagnose.diagnose import _held_stretches, _units, diagnose
+from sdit_path.reading.context import build_context
+from sdit_path.diagnose.diagnose import held_stretches, stretch_numbers, diagnose
 from sdit_path.errormodel.errorset import load_error_set
-from sdit_path.planfiles import load_plan
+from sdit_path.plan.files import load_plan
 from sdit_path.sim.perturb import Hidden, Recording, perturb
 
 PROGRAM = "GOLD_A"
@@ -40,7 +40,7 @@ def test_held_out_stretches_cover_every_kind(golden):
     sectors (period 3: node, rising half, falling half): the fit saw the ball only rise.
     Now a third of each kind - dwells, each sub-segment's place on each pass."""
     _, ctx, _ = golden
-    held = _held_stretches(ctx, 3)
+    held = held_stretches(ctx, 3)
     seg = ctx.segment
     starts = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]])
     runs: Counter = Counter()
@@ -54,7 +54,7 @@ def test_held_out_stretches_cover_every_kind(golden):
     assert len(moving) == 4, kinds  # first and second half, on each of the two passes
     for kind, flags in kinds.items():
         assert 0 < sum(flags) < len(flags), (kind, flags)
-    share = held[_units(ctx)].mean()
+    share = held[stretch_numbers(ctx)].mean()
     assert 0.25 < share < 0.4, share
 
 
@@ -90,7 +90,7 @@ def test_the_mounting_is_tried_whole_when_neither_part_passes_alone(golden):
 
 
 def test_a_finding_whose_every_size_is_within_two_sigma_of_zero_is_not_named_with_confidence():
-    from sdit_path.diagnose.diagnose import Finding, _confidence
+    from sdit_path.diagnose.diagnose import Finding, judge_confidence
 
     def finding(std):
         f = Finding("vibration", "", {"frequency_hz": 8.0, "compliance_Y_um_per_m_s2": 0.91,
@@ -100,7 +100,7 @@ def test_a_finding_whose_every_size_is_within_two_sigma_of_zero_is_not_named_wit
                     heldout_rms_after_um=0.28, delta_bic=900.0)
         f.uncertainty = {"frequency_hz": 2.3, "compliance_Y_um_per_m_s2": std,
                          "peak_Y_um": 0.58 * std / 0.91}
-        _confidence(f)
+        judge_confidence(f)
         return f.confidence
 
     assert finding(0.03) == "high"
@@ -112,25 +112,25 @@ def test_a_scale_and_a_squareness_this_program_cannot_tell_apart_are_named_toget
     error of X and Z, the squareness 2 % behind: the finding names both and the program
     that separates them.  A runner-up well behind, or a pair a real machine has both of,
     leaves the findings as they are."""
-    from sdit_path.diagnose.diagnose import Finding, _confidence, _merge_aliased
+    from sdit_path.diagnose.diagnose import Finding, judge_confidence, merge_aliased
 
     def finding(effect, runner_up, ratio):
         f = Finding(effect, "", {"X_um_per_m": -147.0}, {}, ("scale_X",), rms_before_um=0.39,
                     rms_after_um=0.25, heldout_rms_before_um=0.36, heldout_rms_after_um=0.25,
                     delta_bic=900.0, runner_up=runner_up, runner_up_ratio=ratio)
         f.uncertainty = {"X_um_per_m": 6.5}
-        _confidence(f)
+        judge_confidence(f)
         return f
 
-    close = _merge_aliased([finding("scale_mismatch", "squareness", 1.024)], {}, None,
+    close = merge_aliased([finding("scale_mismatch", "squareness", 1.024)], {}, None,
                            np.array([]), np.array([]))
     assert close[0].ambiguous_with == ["squareness"]
     assert "direction cosine" in close[0].separate_by
     assert close[0].confidence != "high"
-    behind = _merge_aliased([finding("scale_mismatch", "squareness", 1.6)], {}, None,
+    behind = merge_aliased([finding("scale_mismatch", "squareness", 1.6)], {}, None,
                             np.array([]), np.array([]))
     assert behind[0].ambiguous_with == [] and behind[0].confidence == "high"
-    both = _merge_aliased([finding("scale_mismatch", "squareness", 3.0),
+    both = merge_aliased([finding("scale_mismatch", "squareness", 3.0),
                            finding("squareness", "scale_mismatch", 4.0)], {}, None,
                           np.array([]), np.array([]))
     assert [f.effect for f in both] == ["scale_mismatch", "squareness"]

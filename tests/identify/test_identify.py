@@ -13,8 +13,8 @@ from sdit_path.errormodel.errorset import ErrorSet, load_error_set
 from sdit_path.errormodel.model import ModelOptions, build_model, prior_scale, values_vector
 from sdit_path.identify.identify import (Combination, _schur, experiment_gram, identify,
                                          structural_rank)
-from sdit_path.planfiles import load_plan
-from sdit_path.report.manifest import plan_directory_files
+from sdit_path.plan.files import load_plan
+from sdit_path.plan.manifest import plan_directory_files
 from sdit_path.output import write_tree
 from sdit_path.sim.simulate import simulate_trace
 

@@ -109,8 +109,8 @@ def test_a_slower_layer_of_the_same_plan_is_refused(default_feeds, tmp_path):
     were accepted before (analyse named them SDIT_A and went on)."""
     from sdit_path.diagnose.recording import align_recording
     from sdit_path.errors import RecordingError
-    from sdit_path.planfiles import load_plan
-    from sdit_path.sim.traceio import read_trace
+    from sdit_path.plan.files import load_plan
+    from sdit_path.reading.recording import read_trace
     plan = load_plan(default_feeds["F600"])
     for k, (dx, dy, dz) in enumerate(((-3.0, -14.0, -17.0), (1.0, -1.0, 1.0))):
         rec = tmp_path / f"slow{k}.csv"

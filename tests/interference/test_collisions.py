@@ -11,7 +11,7 @@ from sdit_path.config import load_config, parse_config, sample_path
 from sdit_path.errors import PlanError
 from sdit_path.interference.scene import Scene
 from sdit_path.machine.kinematics import Kinematics
-from sdit_path.pipeline import plan
+from sdit_path.plan.pipeline import plan
 
 from conftest import edit
 

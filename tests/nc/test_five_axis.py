@@ -12,8 +12,8 @@ from scipy.interpolate import BSpline
 from sdit_path.config import load_config, parse_config, sample_path
 from sdit_path.machine.kinematics import Kinematics
 from sdit_path.nc.readback import read_sinumerik
-from sdit_path.pipeline import plan
-from sdit_path.report.manifest import manifest
+from sdit_path.plan.pipeline import plan
+from sdit_path.plan.manifest import manifest
 from sdit_path.timing.trajectory import Timer, sample
 
 from conftest import edit
@@ -201,7 +201,7 @@ def test_a_sectors_tilt_offset_tilts_only_its_patch_and_keeps_every_program_on_t
 
 
 def test_a_tilt_offset_on_a_locked_schedule_is_refused_in_one_line():
-    from sdit_path.config import ConfigError
+    from sdit_path.errors import ConfigError
 
     text = edit(sample_path("bc_table_5axis.toml").read_text(), "schedule", '"locked"')
     with pytest.raises(ConfigError) as e:

@@ -7,7 +7,7 @@ import pytest
 from sdit_path.config import load_config
 from sdit_path.nc.readback import read_sinumerik
 from sdit_path.nc.registry import get_postprocessor
-from sdit_path.pipeline import plan
+from sdit_path.plan.pipeline import plan
 
 from conftest import DATA, GOLDEN
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from sdit_path.config import parse_config
-from sdit_path.planfiles import load_plan
+from sdit_path.plan.files import load_plan
 from sdit_path.replan import Limits, review, with_overrides
 
 GOLDEN = Path(__file__).resolve().parents[1] / "data" / "golden_small.toml"

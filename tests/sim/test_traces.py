@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 
-from sdit_path.sim.traceio import TraceError, read_trace
+from sdit_path.reading.recording import TraceError, read_trace
 
 from conftest import DATA
 

@@ -11,15 +11,9 @@ from conftest import edit
 from sdit_path.config import parse_config, sample_path
 from sdit_path.geometry.hemisphere import partition
 from sdit_path.geometry.paths import PathBuilder
+from sdit_path.plan.trajectory_csv import read_csv, to_csv
 from sdit_path.timing.profile import plan_chain
-from sdit_path.timing.trajectory import (
-    RunParameter,
-    TimedRun,
-    Timer,
-    read_csv,
-    sample,
-    to_csv,
-)
+from sdit_path.timing.trajectory import RunParameter, TimedRun, Timer, sample
 
 
 @pytest.fixture(scope="module")

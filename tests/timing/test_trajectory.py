@@ -11,10 +11,11 @@ import pytest
 from sdit_path.config import parse_config, sample_path
 from sdit_path.geometry.hemisphere import partition
 from sdit_path.geometry.paths import PathBuilder
-from sdit_path.pipeline import trajectory_files
+from sdit_path.plan.pipeline import trajectory_files
 from sdit_path.timing.limits import PathLimits
 from sdit_path.timing.profile import plan_profile
-from sdit_path.timing.trajectory import Timer, read_csv, sample, to_csv
+from sdit_path.plan.trajectory_csv import read_csv, to_csv
+from sdit_path.timing.trajectory import Timer, sample
 
 from conftest import edit
 
@@ -121,7 +122,7 @@ def test_feed_words_equal_the_planned_feed(default_plan):
 
 
 def test_cycle_times_in_the_manifest(default_plan):
-    from sdit_path.report.manifest import manifest
+    from sdit_path.plan.manifest import manifest
 
     m = manifest(default_plan)
     for p in m["programs"]:

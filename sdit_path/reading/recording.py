@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SditError
-from .simulate import Trace
+from .trace import Trace
 
 
 class TraceError(SditError):
@@ -227,3 +227,28 @@ def _read_fast(p: Path, text: str, lines: list[str], k: int, cols: list[str],
     if "segment" in cols or "phase" in cols:
         return None  # keep the labels: the careful reader does that
     return Trace(t, dl, seg, ph, header)
+
+
+def trace_csv(trace: Trace) -> str:
+    """The simulator's file: header lines, ``t_s,delta_l_um,segment,phase`` (the
+    trajectory's labels kept)."""
+    lines = [f"# {k}: {v}" for k, v in trace.header.items()]
+    lines.append("t_s,delta_l_um,segment,phase")
+    n = len(trace.t_s)
+    table = np.empty((n, 4), dtype=object)
+    table[:, 0] = trace.t_s
+    table[:, 1] = [("" if not np.isfinite(v) else f"{v:.4f}") for v in trace.delta_l_um]
+    table[:, 2] = trace.segment
+    table[:, 3] = trace.phase
+    lines.append((("%.4f,%s,%s,%s\n" * n)[:-1]) % tuple(table.ravel()))
+    return "\n".join(lines) + "\n"
+
+
+def measured_csv(trace: Trace) -> str:
+    """The instrument's file: header lines, ``t_s,delta_l_um`` only."""
+    lines = [f"# {k}: {v}" for k, v in trace.header.items()]
+    lines.append("t_s,delta_l_um")
+    vals = ["" if not np.isfinite(v) else f"{v:.3f}" for v in trace.delta_l_um]
+    ts = [f"{v:.3f}" for v in trace.t_s]
+    lines.extend(f"{a},{b}" for a, b in zip(ts, vals))
+    return "\n".join(lines) + "\n"

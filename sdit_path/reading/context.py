@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..machine.kinematics import Kinematics
-from ..planfiles import PlanFiles
-from ..sim.simulate import axis_values_rad
+from ..plan.files import PlanFiles
+from ..timing.trajectory import axis_values_rad
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,7 +100,7 @@ def _crawl_start(slow: np.ndarray) -> np.ndarray:
     return np.maximum(np.maximum.accumulate(last), 0)
 
 
-def _directions(qdot: np.ndarray, eps: float) -> np.ndarray:
+def directions(qdot: np.ndarray, eps: float) -> np.ndarray:
     """+-1 last direction of motion per column; before the first motion, the first
     direction (an axis that has not moved yet shows no step)."""
     sign = np.where(qdot > eps, 1.0, np.where(qdot < -eps, -1.0, 0.0))
@@ -165,7 +165,7 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     qdot = np.gradient(q, t, axis=0) if len(t) > 2 else np.zeros_like(q)
     v = np.gradient(ball, t, axis=0) if len(t) > 2 else np.zeros_like(ball)
     speed = np.linalg.norm(v, axis=1)
-    direction = _directions(qdot, velocity_eps)
+    direction = directions(qdot, velocity_eps)
     since = np.full((len(t), m), np.inf)
     at_rev = np.full((len(t), m), np.nan)
     rev_times = []

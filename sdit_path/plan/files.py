@@ -17,9 +17,11 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from .config import Config, parse_config
-from .errors import ConfigError
-from .timing.trajectory import Samples, read_csv_file
+from ..config import Config
+from ..errors import ConfigError
+from ..timing.trajectory import Samples
+from .configure import parse_config
+from .trajectory_csv import read_csv_file
 
 FORMAT = "sdit-path/plan"
 

@@ -9,19 +9,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import __version__
-from .config import Config
-from .errors import LintError, PlanError
-from .geometry.hemisphere import Hemisphere, partition
-from .geometry.paths import LayerPath, PathBuilder
-from .interference.check import Clearance, run_clearances
-from .interference.scene import Scene
-from .machine.kinematics import Kinematics
-from .machine.poses import RunPoses, layer_poses
-from .machine.reach import PieceCheck, Violation, reach_violations
-from .nc.build import BuiltProgram, build_program
-from .nc.registry import get_postprocessor
-from .timing.trajectory import TimedLayer, Timer, sample, to_csv
+from .. import __version__
+from ..config import Config
+from ..errors import LintError, PlanError
+from ..geometry.hemisphere import Hemisphere, partition
+from ..geometry.paths import LayerPath, PathBuilder
+from ..interference.check import Clearance, run_clearances
+from ..interference.scene import Scene
+from ..machine.kinematics import Kinematics
+from ..machine.poses import RunPoses, layer_poses
+from ..machine.reach import PieceCheck, Violation, reach_violations
+from ..nc.build import BuiltProgram, build_program
+from ..nc.registry import get_postprocessor
+from ..timing.trajectory import TimedLayer, Timer, sample
+from .configure import check_config
+from .trajectory_csv import to_csv
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,8 +146,10 @@ def plan(config: Config, on_step: Callable[[str], None] | None = None,
     Infeasible segments (travel, rotary rate, collision) raise :class:`PlanError`
     naming all of them, unless ``skip_infeasible``: then each layer is planned again
     without them.  ``on_step`` is called after each unit of work (see
-    :func:`step_count`).
+    :func:`step_count`).  ``config`` is checked by the stages first
+    (:func:`~sdit_path.plan.configure.check_config`).
     """
+    check_config(config)
     hemi = partition(config)
     kin = Kinematics(config.machine)
     scene = Scene(config, kin)

@@ -9,7 +9,7 @@ from pathlib import PurePath
 
 from .. import __version__
 from ..nc.words import count_blocks
-from ..pipeline import PlanResult
+from .pipeline import PlanResult
 
 FORMAT = "sdit-path/plan"
 FRAMES = {"table": "ball centre in the table frame (work offset)",
@@ -185,7 +185,7 @@ def plan_directory_files(result: PlanResult, on_step=None) -> dict[str, str | by
     trajectories (gzip-compressed CSV: ``pandas.read_csv`` and ``numpy.loadtxt`` read
     them as they are), the config the later stages rebuild the machine from, and plan.json
     with the fingerprints of all the others."""
-    from ..pipeline import trajectory_files
+    from .pipeline import trajectory_files
 
     import gzip
 

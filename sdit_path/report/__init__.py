@@ -1,1 +1,0 @@
-"""Reports: the plan manifest and human-readable summaries."""
