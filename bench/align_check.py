@@ -50,7 +50,7 @@ def one(plan: str, program: str, pd_, k: int, seed: int) -> dict:
 def probe(plan: str, program: str, pd_, k: int, seed: int) -> None:
     """How much timing information case ``k`` holds: the residual RMS of the
     diagnoser's generic alignment model at the true alignment and shifted from it."""
-    from sdit_path.diagnose.align import _fit_rms, generic_columns
+    from sdit_path.diagnose.align import _fit_rms, generic_columns  # noqa: private, a probe
     from sdit_path.reading.context import build_context
     from sdit_path.plan.files import load_plan
 

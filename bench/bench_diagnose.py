@@ -29,8 +29,8 @@ sys.path.insert(0, str(ROOT))
 
 from sdit_path.config import sample_path  # noqa: E402
 from sdit_path.reading.context import build_context  # noqa: E402
-from sdit_path.diagnose.diagnose import diagnose  # noqa: E402
-from sdit_path.diagnose.report import summary_text, to_json  # noqa: E402
+from sdit_path.diagnose import diagnose  # noqa: E402
+from sdit_path.reports.diagnosis import summary_text  # noqa: E402
 from sdit_path.errormodel.errorset import load_error_set  # noqa: E402
 from sdit_path.plan.files import load_plan  # noqa: E402
 from sdit_path.reading.recording import measured_csv  # noqa: E402
@@ -77,7 +77,7 @@ def main() -> None:
         measured = read_trace(path)
         t_read = time.perf_counter() - t0
         result = diagnose(plan, program, measured, model)
-        report = json.dumps(to_json(result))
+        report = json.dumps(result.to_json())
         summary_text(result)
         seconds = time.perf_counter() - t0
         duration = float(measured.t_s[-1] - measured.t_s[0])

@@ -86,8 +86,7 @@ KINDS = (None, None) + gen.EFFECTS + gen.GAPS
 
 def run_case(job):
     plan_dir, program, k, seed, magnitudes = job
-    from sdit_path.diagnose.diagnose import diagnose
-    from sdit_path.diagnose.report import to_json
+    from sdit_path.diagnose import diagnose
     from sdit_path.plan.files import load_plan
     from sdit_path.reading.recording import read_trace
 
@@ -101,7 +100,7 @@ def run_case(job):
         path.write_text(text)
         t0 = time.perf_counter()
         # ---- the blind part: the plan, the program name and the file
-        rep = to_json(diagnose(load_plan(plan_dir), program, read_trace(path)))
+        rep = diagnose(load_plan(plan_dir), program, read_trace(path)).to_json()
         seconds = time.perf_counter() - t0
     return score(program, k, effect, truth, rep, seconds)
 

@@ -86,8 +86,7 @@ _CTX: dict = {}
 def run_case(args):
     i, base_seed, plan_dir, tmp = args
     from sdit_path.reading.context import build_context
-    from sdit_path.diagnose.diagnose import diagnose
-    from sdit_path.diagnose.report import to_json
+    from sdit_path.diagnose import diagnose
     from sdit_path.reading.recording import read_trace
 
     plan = load_plan(plan_dir)
@@ -105,7 +104,7 @@ def run_case(args):
     path.write_text(measured_csv(trace))
     # ---- the blind part: only the plan, program, trace file and model go in
     t0 = time.perf_counter()
-    report = to_json(diagnose(plan, program, read_trace(path), model))
+    report = diagnose(plan, program, read_trace(path), model).to_json()
     seconds = time.perf_counter() - t0
     path.unlink()
     # ---- scoring

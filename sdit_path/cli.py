@@ -279,7 +279,7 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
     from .errormodel.model import ModelOptions
     from .errors import ConfigError
     from .identify.identify import identify
-    from .identify.summary import summary_text
+    from .reports.identification import summary_text
     from .output import write_file
     from .plan.files import load_plan
     from .reading.recording import read_trace
@@ -355,16 +355,17 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
                     no_squareness, no_location, no_pictures, jobs, quiet) -> None:
     """Analyse recordings of a plan's programs: geometry, effects and what stays
     unexplained, estimated together."""
-    import json
     from pathlib import Path
 
-    from .analyse import aligned_csv, analyse, file_stem, summary_text
+    from .analyse import analyse
     from .errormodel.model import ModelOptions
     from .errors import ConfigError
     from .output import check_output, write_tree
     from .parallel import default_jobs
     from .plan.files import load_plan
     from .reading.recording import read_trace
+    from .reports.analysis import analysis_files
+    from .reports.diagnosis import pictures as diagnosis_pictures
 
     try:
         plan = load_plan(plan_dir)
@@ -388,15 +389,10 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
                 recs.append((path, prog, read_trace(path)))
             options = ModelOptions("legendre", linear_order, rotary_order, not no_squareness,
                                    not no_location)
-            report, done = analyse(plan, recs, options, step=step, note=step.note,
-                                   jobs=jobs or default_jobs(), pictures=not no_pictures)
-            files = {"analysis.json": json.dumps(report, indent=2) + "\n",
-                     "analysis.txt": summary_text(report)}
-            for a in done:
-                stem = f"{a.program}_{file_stem(a.label)}"
-                files[f"aligned/{stem}.csv"] = aligned_csv(a)
-                for name, png in a.pictures.items():
-                    files[f"pictures/{stem}_{name}.png"] = png
+            result = analyse(plan, recs, options, step=step, note=step.note,
+                             jobs=jobs or default_jobs(),
+                             draw=None if no_pictures else diagnosis_pictures)
+            files = analysis_files(result)
             step("writing")
             write_tree(out_dir, files, force=force, command="analyse", protect=protect)
     except SditError as exc:
@@ -569,9 +565,9 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
 
     from .diagnose.align import AlignmentError
     from .reading.context import build_context
-    from .diagnose.diagnose import diagnose
+    from .diagnose import diagnose
     from .diagnose.recording import align_recording
-    from .diagnose.report import pictures, summary_text, to_json
+    from .reports.diagnosis import pictures, summary_text
     from .errormodel.errorset import load_error_set
     from .errors import ConfigError
     from .output import write_file
@@ -596,7 +592,7 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
                                   alignment=rec.alignment if model is None else None)
             except AlignmentError as exc:
                 raise AlignmentError(f"{measured}: {exc}") from None
-        report = to_json(result)
+        report = result.to_json()
         if json_out:
             write_file(json_out, json.dumps(report, indent=2) + "\n")
         if pic_dir:

@@ -23,7 +23,7 @@ import scipy.fft as sfft
 from numpy.lib.stride_tricks import sliding_window_view
 
 from ..errors import RecordingError
-from ..reading.context import Context
+from ..reading.context import Context, sample_at
 
 
 class AlignmentError(RecordingError):
@@ -45,6 +45,12 @@ class Alignment:
 
     def measured_time(self, tau: np.ndarray) -> np.ndarray:
         return self.offset_s + np.asarray(tau) * (1.0 + self.clock_ppm * 1e-6)
+
+
+def timing_is_weak(al: Alignment, offset_s: float = 0.002, clock_ppm: float = 5.0) -> bool:
+    """The recording's timing is known worse than ``offset_s`` or ``clock_ppm``."""
+    return not (al.offset_std_s <= offset_s and al.clock_std_ppm <= clock_ppm)
+
 
 
 #: the documented contract: a recorder's clock within this many ppm of the control's
@@ -84,7 +90,7 @@ def _generic_base(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
     """The generic columns that depend on the program alone, and their spreads (made
     once per context: the timing searches build the model dozens of times)."""
     key = ("generic",)
-    if key not in ctx._slow:
+    if key not in ctx.cache:
         mov = ctx.moving.astype(float)
         k = max(1, int(round(0.02 / max(float(np.median(np.diff(ctx.t_s))), 1e-6))))
         mov = np.convolve(mov, np.ones(k) / k, mode="same")
@@ -94,8 +100,8 @@ def _generic_base(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
         cols += [ctx.gain[:, j] * ctx.direction[:, j] for j in ctx.linear if j in ctx.observable]
         base = np.column_stack(cols)
         base.setflags(write=False)
-        ctx._slow[key] = (base, np.ptp(base, axis=0))
-    return ctx._slow[key]
+        ctx.cache[key] = (base, np.ptp(base, axis=0))
+    return ctx.cache[key]
 
 
 def axis_acceleration_readings(ctx: Context) -> np.ndarray:
@@ -217,22 +223,6 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
             if len(best) == candidates:
                 break
     return best
-
-
-def sample_at(t: np.ndarray, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
-    """Rows of ``X`` (on the uniform grid ``t``) linearly interpolated at ``tau``."""
-    dt = (t[-1] - t[0]) / max(len(t) - 1, 1)
-    x = np.clip((tau - t[0]) / dt, 0.0, len(t) - 1.000001)
-    i = x.astype(int)
-    f = (x - i)[:, None] if X.ndim == 2 else x - i
-    # the same arithmetic as X[i] * (1 - f) + X[i + 1] * f, in place (two gathers of a
-    # tall matrix instead of four temporaries)
-    out = X[i]
-    out *= 1 - f
-    nxt = X[np.minimum(i + 1, len(t) - 1)]
-    nxt *= f
-    out += nxt
-    return out
 
 
 def _pinv_gram(G: np.ndarray, rcond: float = 1e-10) -> np.ndarray:

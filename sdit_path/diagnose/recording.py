@@ -23,7 +23,9 @@ from ..plan.files import PlanFiles
 from ..reading.trace import Trace
 from .align import Alignment, AlignmentError, align, check_span
 from ..reading.context import build_context
-from .diagnose import alignment_columns, expected_reading, noise_estimate
+from .columns import expected_reading
+from .effects.generic import alignment_columns
+from .fitting import noise_estimate
 
 #: a residual this many times the recording's own noise (and 0.5 um above it) is not
 #: this program's recording as planned, or holds what the alignment model cannot

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..machine.poses import RunPoses
-from ..machine.reach import Violation, _point
+from ..machine.reach import Violation, point_tuple
 from .scene import Scene
 
 
@@ -56,8 +56,8 @@ def run_clearances(poses: RunPoses, scene: Scene, safety_mm: float
                 best, best_at = d, (i, pair)
         i, pair = best_at
         a, b = scene.nearest_points(poses.q[i], pair)
-        c = Clearance(float(best), scene.pair_names[pair], _point(poses.points_mm[i]),
-                      (_point(a), _point(b)))
+        c = Clearance(float(best), scene.pair_names[pair], point_tuple(poses.points_mm[i]),
+                      (point_tuple(a), point_tuple(b)))
         out[int(k)] = c
         if c.value_mm < safety_mm:
             others = sorted(f"{x}/{y}" for x, y in hits - {c.pair})

@@ -62,7 +62,7 @@ class PieceCheck:
         return not self.violations
 
 
-def _point(p) -> tuple[float, float, float]:
+def point_tuple(p) -> tuple[float, float, float]:
     return tuple(round(float(x), 6) for x in p)
 
 
@@ -89,7 +89,7 @@ def reach_violations(poses: RunPoses, config: Config, kin: Kinematics) -> dict[i
                 if over > 1e-12:
                     out.setdefault(int(k), []).append(Violation(
                         "travel", ax.name, ax.to_display(v[idx]), ax.to_display(limit),
-                        ax.to_display(over), ax.unit, _point(pts[sel[idx]]),
+                        ax.to_display(over), ax.unit, point_tuple(pts[sel[idx]]),
                         f" (margin {ax.to_display(m):g} {ax.unit})" if m else ""))
         if ax.is_rotary and len(ds):
             rate = np.abs(np.diff(q[:, j])) / np.maximum(ds, 1e-12) * feed
@@ -99,7 +99,7 @@ def reach_violations(poses: RunPoses, config: Config, kin: Kinematics) -> dict[i
                 w = sel[int(np.argmax(rate[sel]))]
                 out.setdefault(int(k), []).append(Violation(
                     "rotary_rate", ax.name, np.degrees(rate[w]), np.degrees(ax.max_velocity),
-                    np.degrees(rate[w] - ax.max_velocity), "deg/s", _point(pts[w + 1])))
+                    np.degrees(rate[w] - ax.max_velocity), "deg/s", point_tuple(pts[w + 1])))
     return out
 
 

@@ -60,27 +60,28 @@ class Context:
     #: seen through it (``u`` turns with a rotary table; without one it is ``u`` itself)
     u_bed: np.ndarray
     observable: tuple[int, ...] = ()
-    _slow: dict = field(default_factory=dict)
+    #: arrays derived from the others, kept by the stages that read them (keyed by each)
+    cache: dict = field(default_factory=dict)
 
     def slow_state(self, j: int, speed: float) -> tuple[np.ndarray, np.ndarray]:
         """Whether axis j crawls (moving, slower than ``speed``) and the time since it
         began to, per grid sample (cached)."""
         key = (j, speed)
-        if key not in self._slow:
+        if key not in self.cache:
             slow = (np.abs(self.qdot[:, j]) < speed) & self.moving
-            self._slow[key] = (slow, self.t_s - self.t_s[_crawl_start(slow)])
-        return self._slow[key]
+            self.cache[key] = (slow, self.t_s - self.t_s[_crawl_start(slow)])
+        return self.cache[key]
 
     def crawl_travel(self, j: int, speed: float) -> tuple[np.ndarray, np.ndarray]:
         """Axis j's commanded travel so far (mm, on the grid) and its value where the
         current crawl began (cached)."""
         key = ("travel", j, speed)
-        if key not in self._slow:
+        if key not in self.cache:
             slow, _ = self.slow_state(j, speed)
             dt = np.diff(self.t_s, prepend=self.t_s[0])
             travel = np.cumsum(np.abs(self.qdot[:, j]) * dt)
-            self._slow[key] = (travel, travel[_crawl_start(slow)])
-        return self._slow[key]
+            self.cache[key] = (travel, travel[_crawl_start(slow)])
+        return self.cache[key]
 
     @property
     def n(self) -> int:
@@ -135,6 +136,22 @@ def strided(n: int, points_mm: np.ndarray, spacing_mm: float = 0.5, max_stride: 
     stride = int(np.clip(spacing_mm / max(step, 1e-12), 1, max_stride))
     k = np.arange(0, n, stride)
     return k if k[-1] == n - 1 else np.r_[k, n - 1]
+
+
+def sample_at(t: np.ndarray, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """Rows of ``X`` (on the uniform grid ``t``) linearly interpolated at ``tau``."""
+    dt = (t[-1] - t[0]) / max(len(t) - 1, 1)
+    x = np.clip((tau - t[0]) / dt, 0.0, len(t) - 1.000001)
+    i = x.astype(int)
+    f = (x - i)[:, None] if X.ndim == 2 else x - i
+    # the same arithmetic as X[i] * (1 - f) + X[i + 1] * f, in place (two gathers of a
+    # tall matrix instead of four temporaries)
+    out = X[i]
+    out *= 1 - f
+    nxt = X[np.minimum(i + 1, len(t) - 1)]
+    nxt *= f
+    out += nxt
+    return out
 
 
 def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> Context:

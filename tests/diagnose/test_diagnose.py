@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from sdit_path.reading.context import build_context
-from sdit_path.diagnose.diagnose import diagnose
-from sdit_path.diagnose.report import to_json
+from sdit_path.diagnose import diagnose
 from sdit_path.errormodel.errorset import load_error_set
 from sdit_path.plan.files import load_plan
 from sdit_path.reading.recording import measured_csv
@@ -152,7 +151,7 @@ def test_same_input_same_report(setup, plan_dir, tmp_path):
                               str(plan_dir), "--program", PROGRAM, "--measured", str(measured),
                               "--model", "paper_table2", "--json", str(out), "-q"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    a = to_json(diagnose(plan, PROGRAM, read_trace(measured), model))
+    a = diagnose(plan, PROGRAM, read_trace(measured), model).to_json()
     _, err = other.communicate(timeout=900)
     assert other.returncode == 0, err
     assert out.read_text() == json.dumps(a, indent=2) + "\n"
@@ -278,7 +277,8 @@ def test_a_structural_mode_is_found_on_its_own_axis(setup):
     """A mode of one axis rung by its acceleration (the deflection, not a ripple locked
     to time) is found on that axis at its frequency: the axes start and stop together,
     and a mode fitted to all of them at once spread one axis' compliance over three."""
-    from sdit_path.diagnose.effects import Samples, Vibration, _mode_response, linear_axes
+    from sdit_path.diagnose.effects import Samples, Vibration, linear_axes
+    from sdit_path.diagnose.effects.vibration import _mode_response
 
     _, ctx, _ = setup
     j = next(k for k in linear_axes(ctx) if ctx.axis_names[k] == "Y")
@@ -373,7 +373,7 @@ def test_a_set_point_filter_shortens_a_circle_as_a_gaussian_does():
     standing still it stays where it is."""
     from types import SimpleNamespace
 
-    from sdit_path.diagnose.effects import time_filtered_radial_um
+    from sdit_path.diagnose.effects.smoothing import time_filtered_radial_um
 
     R, v, sigma, dt = 150.0, 2000.0 / 60.0, 0.02, 0.001
     t = np.arange(0.0, 60.0, dt)
@@ -416,7 +416,7 @@ def test_every_axis_reversals_are_both_fitted_and_held_out(setup):
     """An effect that acts only at an axis's reversals is seen by the fit and checked on
     held-out data: whatever the stagger of the stretches gives (here forced to hold out
     all of them, then none), each linear axis keeps reversals on both sides."""
-    from sdit_path.diagnose.diagnose import _balance_reversals, held_stretches, stretch_numbers
+    from sdit_path.diagnose.heldout import _balance_reversals, held_stretches, stretch_numbers
     from sdit_path.diagnose.effects import linear_axes
 
     _, ctx, _ = setup
@@ -438,7 +438,7 @@ def test_every_axis_reversals_are_both_fitted_and_held_out(setup):
 def test_a_parameter_the_bar_cannot_see_is_not_reported():
     """A column the bar never sees stays at zero in the fit; that zero is no estimate:
     the parameter is left out of the finding and named as not seen."""
-    from sdit_path.diagnose.diagnose import seen_parameters
+    from sdit_path.diagnose.fitting import seen_parameters
     from sdit_path.diagnose.effects import ReversalSpike
 
     rng = np.random.default_rng(3)
@@ -460,7 +460,7 @@ def test_stated_uncertainties_hold_and_undetermined_parameters_are_not_reported(
     sample (300 repeats: the errors over the stated uncertainties spread as 1); two
     columns the data cannot tell apart are not reported, and a lag read through a
     square root carries its uncertainty through it."""
-    from sdit_path.diagnose.diagnose import covariance, seen_parameters, solve
+    from sdit_path.diagnose.fitting import covariance, seen_parameters, solve
     from sdit_path.diagnose.effects import ReversalSpike, ServoLag
 
     rng = np.random.default_rng(11)
@@ -506,8 +506,10 @@ def test_a_sticking_axis_crawls_are_left_out_of_the_timing_check(setup):
     the timing is read again without the crawls of the axis that sticks (and the
     settling after them), not without those of an axis that does not."""
     from sdit_path.diagnose.align import Alignment
-    from sdit_path.diagnose.diagnose import (UNSURE_MARGIN_S, Finding, _timing_reading)
-    from sdit_path.diagnose.effects import STICK_SLIP_SPEED_MM_PER_S, Samples, StickSlip
+    from sdit_path.diagnose.effects import Samples, StickSlip
+    from sdit_path.diagnose.effects.friction import STICK_SLIP_SPEED_MM_PER_S
+    from sdit_path.diagnose.results import FindingDraft as Finding
+    from sdit_path.diagnose.timing import UNSURE_MARGIN_S, _timing_reading
 
     _, ctx, _ = setup
     eff = StickSlip()
@@ -543,8 +545,9 @@ def test_the_report_says_why_the_timing_is_wider_and_prints_each_uncertainty():
     parameter is printed with its uncertainty, or as found on a grid without one, and
     an undetermined one is named, not printed."""
     from sdit_path.diagnose.align import Alignment
-    from sdit_path.diagnose.diagnose import Diagnosis, Finding, widened
-    from sdit_path.diagnose.report import summary_text
+    from sdit_path.diagnose.results import Explanation, FindingDraft
+    from sdit_path.diagnose.timing import widened
+    from sdit_path.reports.diagnosis import summary_text
 
     al = Alignment(3.2, -80.0, 0.0008, 4.0, 0.3)
     assert widened(al, (0.0, 0.0), "nothing") is al
@@ -555,19 +558,20 @@ def test_the_report_says_why_the_timing_is_wider_and_prints_each_uncertainty():
     # a widening that moves neither uncertainty by 5 % is taken in, but not printed
     slight = widened(al, (0.0001, 0.5), "a negligible reason")
     assert slight.offset_std_s > al.offset_std_s and slight.widened_by == ()
-    f = Finding("stick_slip", "saw-tooth", {"stick_um": 8.6, "mean_lag_X_um": 0.89,
-                                            "amplitude_X_um": 0.15}, {"stick_um": 8.6},
-                ("mean_lag_X_um", "amplitude_X_um"), 1.0, 0.5, 1.0, 0.5, 20.0,
-                uncertainty={"mean_lag_X_um": 0.014, "amplitude_X_um": 0.043},
-                undetermined=["amplitude_Y_um"])
-    d = Diagnosis("SDIT_B", wide, {"rms_um": 1.0, "max_abs_um": 2.0, "where": {}}, [f],
-                  {"rms_um": 0.3, "significant": False, "where": {}}, 0.12,
-                  {"in_program": 100, "dropouts": 0, "fitted": 67, "heldout": 33}, {})
+    f = FindingDraft("stick_slip", "saw-tooth", {"stick_um": 8.6, "mean_lag_X_um": 0.89,
+                                                 "amplitude_X_um": 0.15}, {"stick_um": 8.6},
+                     ("mean_lag_X_um", "amplitude_X_um"), 1.0, 0.5, 1.0, 0.5, 20.0,
+                     uncertainty={"mean_lag_X_um": 0.014, "amplitude_X_um": 0.043},
+                     undetermined=["amplitude_Y_um"])
+    d = Explanation("SDIT_B", wide, {"rms_um": 1.0, "max_abs_um": 2.0, "where": {}}, [f],
+                    {"rms_um": 0.3, "significant": False, "where": {}}, 0.12,
+                    {"in_program": 100, "dropouts": 0, "fitted": 67, "heldout": 33},
+                    {}).freeze()
     text = summary_text(d)
     assert "Its uncertainty takes in: read without the crawls" in text
     assert "stick_um 8.6 (grid search), mean_lag_X_um 0.89 +- 0.014, amplitude_X_um 0.15 +- 0.043" in text
     assert "not determined apart from the other parameters" in text and "amplitude_Y_um" in text
-    assert to_json(d)["alignment"]["widened_by"] == list(wide.widened_by)
+    assert d.to_json()["alignment"]["widened_by"] == list(wide.widened_by)
 
 
 def test_the_set_up_is_read_again_at_rest_where_a_dynamic_model_misses():
@@ -577,7 +581,7 @@ def test_the_set_up_is_read_again_at_rest_where_a_dynamic_model_misses():
     difference.  With the right shape nothing is widened."""
     from types import SimpleNamespace
 
-    from sdit_path.diagnose.diagnose import GAIN_STD, _at_rest, at_rest_check, covariance, \
+    from sdit_path.diagnose.fitting import GAIN_STD, _at_rest, at_rest_check, covariance, \
         solve
 
     t = np.arange(30_000) * 1e-3
@@ -634,7 +638,8 @@ def test_a_polished_alignment_that_explains_little_is_checked_against_its_neighb
     9.6 um backlash of the independent generator stayed there.  The scan of the
     neighbourhood finds the deeper minimum near the truth."""
     from sdit_path.diagnose.align import local_scan, generic_columns, refine
-    from sdit_path.diagnose.diagnose import alignment_columns, expected_reading
+    from sdit_path.diagnose.columns import expected_reading
+    from sdit_path.diagnose.effects.generic import alignment_columns
 
     gen = _independent_generator()
     plan, ctx, _ = setup
@@ -660,8 +665,10 @@ def test_the_set_up_and_an_effect_are_tried_together_when_neither_passes_alone()
     correlation, for the information criterion to let either in (a 1.3 ms mismatch at
     F2000 beside a 10 um centring was left unfound).  The pair and the mismatch are
     found together; the pair alone is refused."""
-    from sdit_path.diagnose.diagnose import Options, _joint_setup
-    from sdit_path.diagnose.effects import Effect
+    from sdit_path.diagnose.effects import Effect, Samples
+    from sdit_path.diagnose.heldout import Split
+    from sdit_path.diagnose.options import Options
+    from sdit_path.diagnose.selection import Selection
 
     class Named(Effect):
         def __init__(self, name):
@@ -698,17 +705,21 @@ def test_the_set_up_and_an_effect_are_tried_together_when_neither_passes_alone()
         gain = float(r @ r - (r - C @ coef) @ (r - C @ coef))
         trials.append((gain, Named(name), {}, C, (name,), 1))
     rss0 = float(r @ r)
+    held = np.zeros(n, bool)
+    held[ho] = True
+    split = Split(np.arange(n), t, np.arange(n), y, held, tr, ho, Samples(tr, t[tr]),
+                  Samples(ho, t[ho]), y[tr], y[ho], 0.2, 0)
+    selection = Selection(None, [], split, Options(), lambda msg: None)
     # n_eff at its floor: the residual is smooth structure
-    args = (np.zeros((len(tr), 0)), np.zeros((len(ho), 0)), y[tr], y[ho], y[ho], rss0, 10.0,
-            0.2, Options(), None, None)
+    args = (np.zeros((len(tr), 0)), np.zeros((len(ho), 0)), y[ho], rss0, 10.0)
     for _gain, eff, *_ in trials:  # none passes alone
         dbic = 10.0 * np.log(rss0 / (rss0 - _gain)) - np.log(10.0)
         assert dbic < Options().bic_margin, eff.name
-    out = _joint_setup(trials, [], *args)
+    out = selection._joint_mounting(trials, *args)
     assert out is not None
     assert sorted(o[0].name for o in out[0]) == ["bar_length", "servo_mismatch", "setup_offset"]
     assert float(np.sqrt(np.mean(out[2] ** 2))) < 0.3
-    assert _joint_setup(trials, [], *args, companions=0) is None
+    assert selection._joint_mounting(trials, *args, companions=0) is None
 
 
 def test_a_pulse_whose_shape_holds_the_timing_is_searched_with_its_reading_shifted(
@@ -722,8 +733,10 @@ def test_a_pulse_whose_shape_holds_the_timing_is_searched_with_its_reading_shift
     from types import SimpleNamespace
 
     from sdit_path.diagnose.align import generic_columns, refine
-    from sdit_path.diagnose.diagnose import (model_columns, shape_columns, shape_scan,
-                                             expected_reading, library, pose_blocks)
+    from sdit_path.diagnose.columns import expected_reading, model_columns, shape_columns
+    from sdit_path.diagnose.effects import library
+    from sdit_path.diagnose.effects.generic import pose_blocks
+    from sdit_path.diagnose.timing_profiles import shape_scan
 
     gen = _independent_generator()
     plan, ctx, _ = setup
@@ -760,7 +773,7 @@ def test_a_play_that_stood_anywhere_at_the_start_is_read_and_invents_no_pulse(
     (SDIT5_C 4 of seed 2); here it left 0.61 um unexplained against 0.21 of noise.  The
     slack at the start is read from that rest: the play and the slack are found, the
     rest is noise, the timing is covered and no pulse is named."""
-    from sdit_path.diagnose.diagnose import diagnose
+    from sdit_path.diagnose import diagnose
 
     gen = _independent_generator()
     plan, ctx, _ = setup
@@ -824,7 +837,8 @@ def test_a_servo_mismatch_is_read_to_its_second_order(plan_dir, setup):
     is that exact error over d: it reproduces the independent generator's reading of a
     3 ms mismatch at F1500 to 0.008 um RMS, its timing free to a fraction of a sample;
     the first order alone leaves 0.044 um."""
-    from sdit_path.diagnose.effects import SECOND_ORDER, Samples, ServoMismatch
+    from sdit_path.diagnose.effects import Samples, ServoMismatch
+    from sdit_path.diagnose.effects.servo import SECOND_ORDER
 
     gen = _independent_generator()
     _, ctx, _ = setup

@@ -9,9 +9,10 @@ import pytest
 from sdit_path.diagnose import align as align_mod
 from sdit_path.diagnose.align import coarse, generic_columns, refine
 from sdit_path.reading.context import build_context
-from sdit_path.diagnose.diagnose import TrialModel, alignment_columns, expected_reading
-from sdit_path.diagnose.effects import Samples, ServoMismatch, Vibration, _mode_response, \
-    linear_axes
+from sdit_path.diagnose.columns import TrialModel, expected_reading
+from sdit_path.diagnose.effects.generic import alignment_columns
+from sdit_path.diagnose.effects import Samples, ServoMismatch, Vibration, linear_axes
+from sdit_path.diagnose.effects.vibration import _mode_response
 from sdit_path.errormodel.errorset import load_error_set
 from sdit_path.plan.files import load_plan
 from sdit_path.sim.perturb import Hidden, Recording, perturb
@@ -100,7 +101,7 @@ def test_every_mode_at_once_reads_as_each_axis_alone(recorded):
 def test_the_ripple_search_sums_what_the_sines_gave():
     """The cyclic error's pitch search from complex sums stepped by multiplication gives
     the projection gains of the sine and cosine columns it replaced, to rounding."""
-    from sdit_path.diagnose.effects import _gain2, _ripple_gains
+    from sdit_path.diagnose.effects.base import gain2 as _gain2, ripple_gains as _ripple_gains
     rng = np.random.default_rng(2)
     for span in (40.0, 400.0):
         x = rng.uniform(-span / 2, span / 2, 4000)

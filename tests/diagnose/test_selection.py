@@ -12,7 +12,8 @@ import pytest
 
 from sdit_path.analyse import DIAGNOSIS
 from sdit_path.reading.context import build_context
-from sdit_path.diagnose.diagnose import held_stretches, stretch_numbers, diagnose
+from sdit_path.diagnose import diagnose
+from sdit_path.diagnose.heldout import held_stretches, stretch_numbers
 from sdit_path.errormodel.errorset import load_error_set
 from sdit_path.plan.files import load_plan
 from sdit_path.sim.perturb import Hidden, Recording, perturb
@@ -90,7 +91,8 @@ def test_the_mounting_is_tried_whole_when_neither_part_passes_alone(golden):
 
 
 def test_a_finding_whose_every_size_is_within_two_sigma_of_zero_is_not_named_with_confidence():
-    from sdit_path.diagnose.diagnose import Finding, judge_confidence
+    from sdit_path.diagnose.ambiguity import judge_confidence
+    from sdit_path.diagnose.results import FindingDraft as Finding
 
     def finding(std):
         f = Finding("vibration", "", {"frequency_hz": 8.0, "compliance_Y_um_per_m_s2": 0.91,
@@ -112,7 +114,8 @@ def test_a_scale_and_a_squareness_this_program_cannot_tell_apart_are_named_toget
     error of X and Z, the squareness 2 % behind: the finding names both and the program
     that separates them.  A runner-up well behind, or a pair a real machine has both of,
     leaves the findings as they are."""
-    from sdit_path.diagnose.diagnose import Finding, judge_confidence, merge_aliased
+    from sdit_path.diagnose.ambiguity import judge_confidence, merge_aliased
+    from sdit_path.diagnose.results import FindingDraft as Finding
 
     def finding(effect, runner_up, ratio):
         f = Finding(effect, "", {"X_um_per_m": -147.0}, {}, ("scale_X",), rms_before_um=0.39,

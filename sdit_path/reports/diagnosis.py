@@ -1,29 +1,15 @@
-"""The diagnosis as JSON, as text, and as pictures (PNG bytes; no file IO here)."""
+"""The diagnosis as text and as pictures (PNG bytes; no file IO here); its JSON is
+:meth:`sdit_path.diagnose.Diagnosis.to_json`."""
 
 from __future__ import annotations
 
 import io
-import math
 
 import numpy as np
 
+from ..diagnose import Diagnosis
+from ..diagnose.align import timing_is_weak
 from ..reading.context import Context
-from .diagnose import Diagnosis, timing_is_weak
-from .effects import EFFECT_NAMES
-
-
-def _clean(v):
-    if isinstance(v, float):
-        return None if not math.isfinite(v) else round(v, 6)
-    if isinstance(v, dict):
-        return {k: _clean(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_clean(x) for x in v]
-    if isinstance(v, (np.floating,)):
-        return _clean(float(v))
-    if isinstance(v, (np.integer,)):
-        return int(v)
-    return v
 
 
 def parameters_text(params: dict, std: dict) -> str:
@@ -38,45 +24,6 @@ def parameters_text(params: dict, std: dict) -> str:
         else:
             out.append(f"{k} {v:.4g} +- {std[k]:.2g}")
     return ", ".join(out)
-
-
-def to_json(d: Diagnosis) -> dict:
-    al = d.alignment
-    out = {
-        "program": d.program,
-        "alignment": {"offset_s": al.offset_s, "clock_ppm": al.clock_ppm,
-                      "offset_std_s": al.offset_std_s, "clock_std_ppm": al.clock_std_ppm,
-                      "timing_weak": timing_is_weak(al),
-                      "widened_by": list(al.widened_by),
-                      "note": "measured t = offset_s + program t * (1 + clock_ppm 1e-6); a "
-                              "following delay of the machine is part of the offset"},
-        "samples": d.samples,
-        "noise_um": d.noise_um,
-        "gap": d.gap,
-        "findings": [{
-            "rank": k + 1, "effect": f.effect, "title": f.title, "parameters": f.parameters,
-            "parameter_std": {p: f.uncertainty[p] for p in f.parameters if p in f.uncertainty},
-            "searched_on_a_grid": [p for p, v in f.parameters.items()
-                                   if isinstance(v, float) and p not in f.uncertainty],
-            "not_seen_by_the_bar": f.unseen,
-            "not_determined": f.undetermined,
-            "where": {"segments": f.where.get("segments", []),
-                      "time_windows_s": f.where.get("time_windows_s", []),
-                      "phase_rms_um": f.where.get("phase_rms_um", {}),
-                      "reversal_rms_um": f.where.get("reversal_rms_um", {})},
-            "rms_before_um": f.rms_before_um, "rms_after_um": f.rms_after_um,
-            "heldout_rms_before_um": f.heldout_rms_before_um,
-            "heldout_rms_after_um": f.heldout_rms_after_um,
-            "contribution_rms_um": f.contribution_rms_um,
-            "delta_bic": f.delta_bic, "confidence": f.confidence,
-            "mimics": f.mimics, "runner_up": f.runner_up,
-            "ambiguous_with": f.ambiguous_with, "separate_by": f.separate_by,
-            "runner_up_evidence_ratio": f.runner_up_ratio,
-        } for k, f in enumerate(d.findings)],
-        "unexplained": d.unexplained,
-        "library": list(EFFECT_NAMES),
-    }
-    return _clean(out)
 
 
 def summary_text(d: Diagnosis) -> str:

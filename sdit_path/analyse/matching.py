@@ -1,0 +1,151 @@
+"""Which program a recording is of: named, or recognised from its duration and from
+where it stands still (the program's dwells fall on the recording's still windows),
+then aligned (start, clock rate); a recording that fits no program of the plan, or
+another one better than the program named, is refused with one line."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..diagnose.fitting import noise_estimate
+from ..diagnose.recording import AlignedRecording, align_recording, plausible_programs
+from ..errors import ConfigError, RecordingError
+from ..plan.files import PlanFiles
+from ..reading.context import Context, build_context
+from ..reading.trace import Trace
+
+
+def program_context(plan: PlanFiles, program: str, contexts: dict | None) -> Context:
+    """The program's context, built once per analysis."""
+    if contexts is None:
+        return build_context(plan, program)
+    if program not in contexts:
+        contexts[program] = build_context(plan, program)
+    return contexts[program]
+
+
+_WINDOW_S = 0.5
+
+#: the least dwell score (:func:`dwell_score`) of a recording of the program
+DWELL_MATCH = 0.4
+
+
+def still_windows(trace: Trace) -> np.ndarray | None:
+    """Per 0.5 s of the recording: does it stand still (its spread no more than its own
+    noise allows)?  None when it stands still most of the time (a perfect set-up on a
+    perfect machine: where it stands still says nothing about the program)."""
+    t = np.asarray(trace.t_s, float)
+    y = np.asarray(trace.delta_l_um, float)
+    ok = np.isfinite(y)
+    t, y = t[ok], y[ok]
+    if len(t) < 1000:
+        return None
+    noise = noise_estimate(y, t)
+    k = np.searchsorted(t, np.arange(t[0], t[-1], _WINDOW_S))
+    still = np.array([b - a >= 20 and float(np.std(y[a:b])) <= 1.15 * noise + 0.01
+                      for a, b in zip(k[:-1], k[1:])], bool)
+    return None if still.mean() > 0.6 else still
+
+
+def _dwell_windows(plan: PlanFiles, program: str) -> tuple[np.ndarray, np.ndarray]:
+    """Per 0.5 s of the program: wholly inside a dwell, wholly in the motion (0 or 1)."""
+    traj = plan.trajectory(program)
+    edges = np.arange(0.0, float(traj.t_s[-1]), _WINDOW_S)
+    k = np.searchsorted(traj.t_s, edges)
+    dwell = (traj.phase == "dwell")
+    inside = np.array([b > a and dwell[a:b].all() for a, b in zip(k[:-1], k[1:])], float)
+    moving = np.array([b > a and not dwell[a:b].any() for a, b in zip(k[:-1], k[1:])], float)
+    return inside, moving
+
+
+def dwell_score(plan: PlanFiles, program: str, still: np.ndarray) -> float:
+    """How well the program's dwells fall on the recording's still windows, at the best
+    start: share of the windows inside a dwell that are still, less the share of the
+    windows in the motion that are (1: a perfect match; near 0: another program)."""
+    inside, moving = _dwell_windows(plan, program)
+    if len(inside) > len(still) or not inside.any() or not moving.any():
+        return 0.0
+    s = still.astype(float)
+    hits = np.correlate(s, inside, "valid") / inside.sum()
+    false = np.correlate(s, moving, "valid") / moving.sum()
+    return float(np.max(hits - false))
+
+
+def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
+          contexts: dict | None = None) -> tuple[AlignedRecording, str]:
+    """The recording aligned to its program, and how the program was chosen.  Refuses
+    (one line) a recording that fits no program of the plan, or fits another one better
+    than the program named."""
+    fits = plausible_programs(plan, trace)
+    by_duration = [p for p, why in fits if not why]
+    if named is not None and named not in plan.program_names:
+        raise ConfigError(label, f"program {named[:40]!r} is not in the plan "
+                                 f"({', '.join(plan.program_names)})")
+    still = still_windows(trace)
+    if not by_duration:
+        raise RecordingError(f"{label}: fits no program of this plan: "
+                             + "; ".join(why for _, why in fits)
+                             + " (another plan or feed?)")
+    scores = {p: dwell_score(plan, p, still) for p in by_duration} if still is not None else {}
+    seen = ("dwells on the recording's still windows: " + ", ".join(
+        f"{p} {v:.2f}" for p, v in sorted(scores.items(), key=lambda kv: -kv[1]))
+        if scores else "the recording stands still nearly throughout (its dwells say nothing)")
+    # a recording of its program scores 0.63-1.0 (every one made so far), another
+    # program of the same plan up to 0.42, another feed or plan 0.25: below DWELL_MATCH
+    # no program of this plan was recorded (when the recording stands still at least
+    # half as long as the programs dwell: else it cannot tell)
+    telling = still is not None and scores and still.sum() >= 0.5 * min(
+        _dwell_windows(plan, p)[0].sum() for p in scores)
+    if telling and scores and max(scores.values()) < DWELL_MATCH:
+        raise RecordingError(f"{label}: matches no program of this plan: its still windows fall "
+                             f"on no program's dwells ({seen}; a recording of its program scores "
+                             f"{DWELL_MATCH} or more): another feed or plan?")
+    if telling and named in scores and scores[named] < DWELL_MATCH:
+        raise RecordingError(f"{label}: not a recording of {named}: its still windows fall on "
+                             f"{named}'s dwells at {scores[named]:.2f} ({seen}; a recording of its "
+                             f"program scores {DWELL_MATCH} or more): another program, feed or plan?")
+    if scores:
+        # the dwell pattern first: only the programs whose dwells fall on the
+        # recording's still windows nearly as well as the best one's are aligned
+        top = max(scores.values())
+        near = [p for p in by_duration if scores[p] >= top - 0.15]
+    else:
+        near = list(by_duration)
+    candidates = list(dict.fromkeys(([named] if named else []) + near))
+    if named and named not in by_duration:
+        why = dict(fits)[named]
+        raise RecordingError(f"{label}: not a recording of {named}: {why}"
+                             + (f"; its duration fits {', '.join(by_duration)}" if by_duration else ""))
+    results, refusals = {}, {}
+    for prog in candidates:
+        try:
+            results[prog] = align_recording(plan, prog, trace, label,
+                                            program_context(plan, prog, contexts))
+        except RecordingError as exc:
+            refusals[prog] = str(exc).removeprefix(f"{label}: ")
+    if named:
+        if named not in results:
+            raise RecordingError(f"{label}: {refusals[named]}"
+                                 + (f"; it fits {', '.join(results)}" if results else ""))
+        mine = results[named].alignment.rms_um
+        better = [p for p, r in results.items() if p != named and r.alignment.rms_um < 0.8 * mine]
+        if better:
+            b = min(better, key=lambda p: results[p].alignment.rms_um)
+            raise RecordingError(
+                f"{label}: fits {b} better than {named} (alignment residual "
+                f"{results[b].alignment.rms_um:.2f} against {mine:.2f} um; {seen}): name the "
+                f"program that was run")
+        return results[named], "named"
+    if not results:
+        raise RecordingError(
+            f"{label}: matches no program of this plan ({seen}): "
+            + "; ".join(f"{p}: {why}" for p, why in refusals.items())[:600])
+    ranked = sorted(results, key=lambda p: results[p].alignment.rms_um)
+    best = ranked[0]
+    if len(ranked) > 1 and results[ranked[1]].alignment.rms_um < 1.25 * results[best].alignment.rms_um:
+        raise RecordingError(
+            f"{label}: fits {best} and {ranked[1]} alike (alignment residual "
+            f"{results[best].alignment.rms_um:.2f} and {results[ranked[1]].alignment.rms_um:.2f} um); "
+            f"name its program: --measured {best}={label}")
+    return results[best], (f"recognised: {seen}; alignment residual {results[best].alignment.rms_um:.2f} um"
+                           + "".join(f", {p} {results[p].alignment.rms_um:.2f}" for p in ranked[1:]))

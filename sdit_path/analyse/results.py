@@ -1,0 +1,58 @@
+"""What ``analyse`` hands out: every recording matched, aligned and diagnosed, and the
+geometry identified from all of them with the effects found; frozen, with
+``to_json()``."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from ..diagnose import Diagnosis
+from ..diagnose.recording import AlignedRecording
+from ..reading.context import Context
+from ..reading.trace import Trace
+
+
+@dataclass(frozen=True, slots=True)
+class Analysed:
+    """One recording: its ``label`` (the file), its ``program`` and how it was chosen
+    (``matched``), its first alignment (``aligned``), its ``diagnosis``, the recording on
+    program time by the diagnosis' alignment (``trace``), the program's context and the
+    diagnosis' ``pictures`` (name -> PNG, when drawn)."""
+
+    label: str
+    program: str
+    matched: str
+    aligned: AlignedRecording
+    diagnosis: Diagnosis
+    trace: Trace
+    ctx: Context
+    pictures: Mapping[str, bytes]
+
+
+@dataclass(frozen=True, slots=True)
+class AnalysisResult:
+    """The recordings of one test analysed together: ``recordings`` in the order given,
+    ``geometry`` (the identification's report with the effects found as nuisances) and
+    ``warnings`` (one line each)."""
+
+    recordings: tuple[Analysed, ...]
+    geometry: Mapping
+    warnings: tuple[str, ...]
+
+    def to_json(self) -> dict:
+        per = []
+        across: dict[str, list] = {}
+        for k, a in enumerate(self.recordings):
+            dj = a.diagnosis.to_json()
+            for f in dj["findings"]:
+                across.setdefault(f["effect"], []).append(
+                    {"recording": a.label, "program": a.program, "confidence": f["confidence"],
+                     "parameters": f["parameters"], "parameter_std": f["parameter_std"],
+                     "contribution_rms_um": f["contribution_rms_um"]})
+            per.append({"file": a.label, "program": a.program, "matched": a.matched,
+                        "first_alignment": a.aligned.as_json(), "diagnosis": dj,
+                        "nuisances": self.geometry["nuisances"][k]})
+        return {"recordings": per, "geometry": self.geometry,
+                "aliasing": self.geometry.get("aliasing", []),
+                "across_recordings": across, "warnings": list(self.warnings)}

@@ -1,0 +1,64 @@
+"""Generic shapes of what any recording may hold, from the library's effects: fitted
+beside the timing so that they cannot pull it."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...plan.files import PlanFiles
+from ...reading.context import Context, strided
+from ..align import axis_acceleration_readings
+from .base import Samples, linear_axes
+from .friction import ReversalSpike
+from .geometry import GeometryBeyond, ScaleMismatch, Squareness
+from .play import Backlash, LateralPlay
+from .servo import ServoMismatch
+
+
+def pose_blocks(plan: PlanFiles, ctx: Context) -> list[np.ndarray]:
+    """Geometry as functions of the pose, one block per kind (squareness, scale, the
+    smooth geometry beyond the model), on the trajectory grid."""
+    m, travel = plan.config.machine, plan.tested_travel()
+    k = strided(ctx.n, ctx.ball_mm)
+    sub = Samples(k, ctx.t_s[k])
+    at = np.arange(ctx.n)
+    out = []
+    for E in (Squareness(m, travel), ScaleMismatch(m, travel), GeometryBeyond(m, travel)):
+        G = E.columns(ctx, sub, {})[0]
+        out.append(np.column_stack([np.interp(at, k, G[:, i]) for i in range(G.shape[1])])
+                   if G.shape[1] else np.zeros((ctx.n, 0)))
+    return out
+
+
+def alignment_columns(plan: PlanFiles, ctx: Context, pose_only: bool = False) -> np.ndarray:
+    """Columns the alignment fits besides its generic ones, so that what every trace
+    may hold cannot pull the timing: geometry as functions of the pose (squareness,
+    scale, and the smooth geometry beyond the model) and, unless ``pose_only``,
+    different servo lags, a drift, and reversal-locked steps and pulses (backlash,
+    lateral play, friction spikes)."""
+    pose = np.column_stack(pose_blocks(plan, ctx))
+    return pose if pose_only else np.column_stack([pose, dynamic_columns(ctx)])
+
+
+def dynamic_columns(ctx: Context) -> np.ndarray:
+    """What any recording may hold besides geometry, in generic shapes: different servo
+    lags, a drift, and reversal-locked steps and pulses (backlash, lateral play,
+    friction spikes)."""
+    allg = Samples(np.arange(ctx.n), ctx.t_s)
+    cols = [ServoMismatch().columns(ctx, allg, {})[0]]
+    cols.append(ctx.u_bed * (ctx.t_s / 3600.0)[:, None])
+    # each axis deflects with its own acceleration (its structure's compliance, a mode
+    # of tens of Hz quasi-static below it): microns at each start and stop, which left
+    # 17-20 ms and 100-120 ppm in the timing.  Not generic: on a trace without it the
+    # same columns take the starts and stops the timing is read from
+    cols.append(axis_acceleration_readings(ctx))
+    widths = {f"width_{ctx.axis_names[j]}_um": 6.5 for j in linear_axes(ctx)
+              if len(ctx.reversal_times[j])}
+    if widths:
+        cols.append(Backlash().columns(ctx, allg, widths)[0])
+        # a pulse at the sign change and one at a breakaway speed (25 ms later on a
+        # slow reversal inside a curve)
+        for onset in (ReversalSpike.onsets_mm_s[0], 0.05):
+            cols.append(ReversalSpike().columns(ctx, allg, {"tau_ms": 25.0, "onset_mm_s": onset})[0])
+        cols.append(LateralPlay().columns(ctx, allg, {})[0])
+    return np.column_stack(cols)

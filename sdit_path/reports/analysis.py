@@ -1,0 +1,118 @@
+"""The analysis of a test's recordings as text, and the files ``analyse`` writes (the
+report, each recording on its program's time, the pictures); its JSON is
+:meth:`sdit_path.analyse.AnalysisResult.to_json`."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from ..analyse import Analysed, AnalysisResult
+from .diagnosis import parameters_text
+from .identification import summary_text as geometry_text
+
+
+def summary_text(report: dict) -> str:
+    """The analysis as the metrologist reads it, from its JSON (``to_json()``)."""
+    lines = [f"Analysis of {len(report['recordings'])} recording(s)."]
+    for r in report["recordings"]:
+        al = r["diagnosis"]["alignment"]
+        lines.append(f"  {r['file']}: {r['program']} ({r['matched']}); program starts at "
+                     f"{al['offset_s']:.4f} s of the recording (+- {_ms(al['offset_std_s'])} ms), "
+                     f"clock {al['clock_ppm']:+.1f} ppm (+- {_num(al['clock_std_ppm'])}), noise "
+                     f"{r['diagnosis']['noise_um']:.2f} um")
+    for w in report["warnings"]:
+        lines.append(f"WARNING: {w}")
+    lines.append("")
+    lines.append("GEOMETRY (estimated together with the effects below; each effect found in a "
+                 "recording is a nuisance of that recording):")
+    g = dict(report["geometry"])
+    g.pop("recordings", None)
+    g["warnings"] = report["warnings"] and ["see the warnings above"]
+    lines.append(geometry_text(g))
+    alias = report["aliasing"]
+    lines.append("")
+    if alias:
+        lines.append("Dynamics and geometry aliased in these recordings (an effect estimated "
+                     "with the geometry takes certainty from it):")
+        for x in alias:
+            runs = "; ".join(f"{s['run']}: +- {s['std']:.3g}" for s in x["second_run"])
+            lines.append(f"  {x['effect']} in {x['program']} makes {x['combination']} "
+                         f"{x['factor']:.1f} times less certain (+- {x['std_without_effect']:.3g} "
+                         f"without it). One more run of {x['program']}, computed on the same poses "
+                         f"with the effect shared: {runs}.")
+    else:
+        lines.append("No effect found takes more than a third of the certainty of a determined "
+                     "combination: dynamics and geometry are separated by these recordings.")
+    lines.append("")
+    lines.append("EFFECTS across the recordings:")
+    if not report["across_recordings"]:
+        lines.append("  none found beyond the set-up.")
+    for eff, hits in report["across_recordings"].items():
+        lines.append(f"  {eff}: " + "; ".join(
+            f"{h['program']} ({h['confidence']}, {h['contribution_rms_um']:.2f} um RMS)" for h in hits))
+    for r in report["recordings"]:
+        lines.append("")
+        lines.append(f"RECORDING {r['file']} ({r['program']}):")
+        lines.append(_diagnosis_text(r["diagnosis"]))
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def _ms(v) -> str:
+    return "?" if v is None else f"{v * 1e3:.2f}"
+
+
+def _num(v) -> str:
+    return "?" if v is None else f"{v:.1f}"
+
+
+def _diagnosis_text(d: dict) -> str:
+    lines = [f"  gap RMS {d['gap']['rms_um']:.3f} um, noise {d['noise_um']:.3f} um"]
+    if not d["findings"]:
+        lines.append("  findings: none beyond the set-up")
+    for f in d["findings"]:
+        par = parameters_text(f["parameters"], f.get("parameter_std", {}))
+        name = " or ".join([f["effect"], *f.get("ambiguous_with", [])])
+        lines.append(f"  {f['rank']}. {name} ({f['confidence']} confidence): {par}")
+        lines.append(f"     held-out RMS {f['heldout_rms_before_um']:.3f} -> "
+                     f"{f['heldout_rms_after_um']:.3f} um")
+        if f.get("ambiguous_with"):
+            lines.append(f"     AMBIGUOUS: to separate them, {f['separate_by']}")
+    u = d["unexplained"]
+    verdict = "NOT explained by the library" if u["significant"] else "at the noise level"
+    lines.append(f"  unexplained: RMS {u['rms_um']:.3f} um ({verdict})"
+                 + (": strongest in " + ", ".join(u["where"]["segments"][:6])
+                    if u["significant"] and u.get("where", {}).get("segments") else ""))
+    return "\n".join(lines)
+
+
+def aligned_csv(a: Analysed) -> str:
+    """The recording on its program's time, for other tools."""
+    al = a.diagnosis.alignment
+    head = [f"# program: {a.program}", f"# source: {a.label}",
+            f"# offset_s: {al.offset_s:.6f}", f"# clock_ppm: {al.clock_ppm:.3f}",
+            "# t_s is program time: measured t = offset_s + t_s * (1 + clock_ppm 1e-6)",
+            "t_s,delta_l_um"]
+    rows = [f"{t:.6f},{y:.4f}" for t, y in zip(a.trace.t_s, a.trace.delta_l_um)
+            if math.isfinite(y)]  # a dropout stays out
+    return "\n".join(head + rows) + "\n"
+
+
+def file_stem(label: str) -> str:
+    stem = Path(label).stem or "recording"
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in stem)[:60]
+
+
+def analysis_files(result: AnalysisResult) -> dict[str, str | bytes]:
+    """Every file ``analyse`` writes (relative path -> content): the report as JSON and
+    text, each recording on its program's time, and the pictures drawn."""
+    report = result.to_json()
+    files: dict[str, str | bytes] = {"analysis.json": json.dumps(report, indent=2) + "\n",
+                                     "analysis.txt": summary_text(report)}
+    for a in result.recordings:
+        stem = f"{a.program}_{file_stem(a.label)}"
+        files[f"aligned/{stem}.csv"] = aligned_csv(a)
+        for name, png in a.pictures.items():
+            files[f"pictures/{stem}_{name}.png"] = png
+    return files
