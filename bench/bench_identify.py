@@ -54,7 +54,7 @@ def main() -> None:
                                             quantisation_um=QUANT_UM, seed=1)) for prog in programs]
         n = sum(len(t.t_s) for _, _, t in traces)
         t0 = time.perf_counter()
-        report = identify(traces, options)
+        report = identify(traces, options).to_json()
         dt = time.perf_counter() - t0
         print(f"identification, {len(programs)} layer traces at 1 kHz ({n:,} samples), "
               f"{len(model.parameters)} parameters: {dt:.2f} s ({n / dt:,.0f} samples/s); "

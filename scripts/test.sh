@@ -22,6 +22,10 @@ echo "== installing sdit-path and test dependencies"
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e '.[test]'
 
+echo "== lint (ruff) and types (mypy on config, nc, reading and the effect library)"
+.venv/bin/ruff check sdit_path postprocessors tests bench validation
+.venv/bin/mypy
+
 echo "== running the tests"
 # two workers on the machine's two cores, each with one BLAS thread: numpy's threads
 # gave nothing here (the diagnosis's self-check took 41 s with them, 37 s without) and

@@ -12,7 +12,6 @@ import click
 import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.table import Table
 
 from . import __version__
 from .errors import SditError
@@ -98,12 +97,11 @@ def plan_command(config: str | None, out_dir: str, force: bool, skip_infeasible:
                  quiet: bool) -> None:
     """Plan CONFIG (default: the bundled 3-axis sample) and write one program per layer
     and controller, plus plan.json."""
-    from .plan.configure import load_config
-    from .nc.registry import get_postprocessor
-    from .nc.words import count_blocks
     from .output import check_output, write_tree
-    from .plan.pipeline import plan, step_count
+    from .plan.configure import load_config
     from .plan.manifest import plan_directory_files
+    from .plan.pipeline import plan, step_count
+    from .reports.plan import plan_table
 
     try:
         cfg = load_config(config)
@@ -118,25 +116,8 @@ def plan_command(config: str | None, out_dir: str, force: bool, skip_infeasible:
         return
     if quiet:
         return
-    table = Table(title=f"{cfg.machine.name}: R {result.hemisphere.radius_mm:g} mm, "
-                        f"F{cfg.test.feed_mm_per_min:g}, dwell {cfg.test.dwell_s:g} s",
-                  title_justify="left")
-    for col in ("layer", "segments", "dwells", "cycle (s)"):
-        table.add_column(col, justify="right" if col != "layer" else "left")
-    for c in cfg.post.controllers:
-        short = get_postprocessor(c).short
-        table.add_column(f"{short} blocks", justify="right")
-        table.add_column(f"{short} max dev (um)", justify="right")
-    for path in result.paths:
-        timed = next(la.timed for la in result.layers if la.path is path)
-        row = [path.layer, str(len(set(path.segment_order()))), str(len(path.dwells)),
-               f"{timed.duration_s:.1f}" if timed else "-"]
-        for c in cfg.post.controllers:
-            p = next(x for x in result.programs if x.layer == path.layer and x.controller == c)
-            row += [str(count_blocks(p.text)), f"{p.built.max_deviation_mm * 1e3:.4f}"]
-        table.add_row(*row)
     out_console = Console()
-    out_console.print(table)
+    out_console.print(plan_table(result))
     out_console.print(f"wrote {len(files)} files to {out}/ (programs under "
                       f"{', '.join(c + '/' for c in cfg.post.controllers)}, manifest plan.json)")
 
@@ -161,6 +142,7 @@ def preview_command(config: str | None, out_dir: str, feed: float | None, force:
     from .errors import ConfigError
     from .output import check_output, write_tree
     from .plan.pipeline import plan, step_count
+    from .plan.preview import preview
     from .reports.preview import preview_files
 
     try:
@@ -174,7 +156,7 @@ def preview_command(config: str | None, out_dir: str, feed: float | None, force:
         with _Steps(quiet, step_count(cfg) + len(cfg.test.track_elevations_deg),
                     "planning") as step:
             result = plan(cfg, on_step=step, skip_infeasible=skip_infeasible)
-            files = preview_files(result, on_step=step)
+            files = preview_files(preview(result), on_step=step)
             out = write_tree(out_dir, files, force=force, command="preview", protect=protect)
     except SditError as exc:
         _fail(exc)
@@ -275,14 +257,12 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
     """Identify what the traces determine about the machine's geometric errors."""
     import json
 
-    from .diagnose.recording import align_recording, poor_fit
+    from .analyse.identification import identify_recordings
     from .errormodel.model import ModelOptions
     from .errors import ConfigError
-    from .identify.identify import identify
-    from .reports.identification import summary_text
     from .output import write_file
     from .plan.files import load_plan
-    from .reading.recording import read_trace
+    from .reports.identification import summary_text
 
     try:
         if len(plan_dirs) not in (1, len(traces)):
@@ -291,38 +271,13 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
             raise ConfigError("--program", f"give one program per trace ({len(traces)})")
         with _Steps(quiet, 2 * len(traces) + 2, "reading the plan") as step:
             plans = [load_plan(d) for d in plan_dirs]
-            experiments = []
-            recordings = []
-            for k, path in enumerate(traces):
-                step(f"reading {path}")
-                trace = read_trace(path)
-                prog = programs[k] if programs else trace.header.get("program")
-                if not prog:
-                    raise ConfigError(path, "no '# program:' line; pass --program")
-                plan_k = plans[k if len(plans) > 1 else 0]
-                if prog not in plan_k.program_names:
-                    raise ConfigError(path, f"program {prog[:40]!r} is not in the plan "
-                                            f"({', '.join(plan_k.program_names)}); pass --program")
-                # a recording runs on its instrument's clock: matched and aligned to its
-                # program first, as the diagnosis does
-                step(f"aligning {path} to {prog}")
-                rec = align_recording(plan_k, prog, trace, str(path))
-                recordings.append(rec)
-                experiments.append((plan_k, prog, rec.trace))
             options = ModelOptions(linear_basis, linear_order, rotary_order, not no_squareness,
                                    not no_location)
-            step("identifying")
-            report = identify(experiments, options, prior=prior, ask=tuple(ask))
-            report["recordings"] = [{"file": str(p), **r.as_json()}
-                                    for p, r in zip(traces, recordings)]
-            noise = max(r.noise_um for r in recordings)
-            report["warnings"] = []
-            if poor_fit(report["noise_std_um"], noise):
-                report["warnings"].append(
-                    f"the identified model leaves {report['noise_std_um']:.2f} um RMS against "
-                    f"the recordings' own noise of at most {noise:.2f} um: a recording of another "
-                    f"program, feed or plan, a set-up that moved during the test, or an effect "
-                    f"beyond geometry (servo, backlash, drift: see diagnose)")
+            result = identify_recordings(
+                [(path, plans[k if len(plans) > 1 else 0], programs[k] if programs else None)
+                 for k, path in enumerate(traces)], options, prior=prior, ask=tuple(ask),
+                step=step)
+            report = result.to_json()
             if json_out:
                 write_file(json_out, json.dumps(report, indent=2) + "\n")
             step("done")
@@ -428,7 +383,8 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, jobs, quie
     from .parallel import default_jobs
     from .plan.pipeline import plan
     from .plan.files import load_plan
-    from .replan import analysis_reasons, pictures, replan, report_json, report_text
+    from .replan import analysis_reasons, replan
+    from .reports.replan import pictures, report_text
     from .plan.manifest import plan_directory_files
 
     try:
@@ -453,7 +409,7 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, jobs, quie
             skip = any(s.get("status") == "omitted" for s in old.manifest.get("segments", []))
             planned = plan(result.config, on_step=step.note, skip_infeasible=skip)
             files = plan_directory_files(planned, on_step=step.note)
-            report = report_json(result)
+            report = result.to_json()
             manifest = json.loads(files["plan.json"])
             manifest["replan"] = {"from": str(Path(plan_dir).name), **report}
             files["plan.json"] = json.dumps(manifest, indent=2, ensure_ascii=False) + "\n"

@@ -23,13 +23,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sdit_path.config import parse_config, sample_path
+from sdit_path.config import sample_path
 from sdit_path.errors import ConfigError, SditError
 from sdit_path.output import MARKER, write_file, write_tree
+from sdit_path.plan.configure import parse_config
 from sdit_path.plan.files import load_plan
 from sdit_path.reading.recording import read_trace
 
 from conftest import DATA, edit, have_linuxcnc
+from mutate import mutate_config, mutate_trace
 
 SMALL = DATA / "golden_small.toml"
 
@@ -472,33 +474,6 @@ def test_a_full_disk_is_one_clear_line_from_every_writer(full_disk, small_plan, 
 
 # --------------------------------------------------------------------------- fuzzing
 
-_WEIRD = ["0", "-1", "1e308", "-1e308", "5e-324", "nan", "inf", "-inf", "1e-300", '"x"', '""',
-          "[]", "[1]", "[1, 2, 3, 4]", "{}", "true", '"中文"', '"\\u0000"', "[[1]]", "1_000",
-          '"' + "y" * 2000 + '"', "-0.0", "3", "[0, 0, 0]", "[1e300, 1e300, 1e300]"]
-
-
-def _mutate_config(text: str, rng: random.Random) -> str:
-    lines = text.splitlines()
-    for _ in range(rng.randint(1, 3)):
-        assignable = [i for i, ln in enumerate(lines) if re.match(r"^\s*[A-Za-z_]+\s*=", ln)]
-        op = rng.random()
-        i = rng.choice(assignable)
-        key = lines[i].split("=", 1)[0].strip()
-        if op < 0.6:
-            lines[i] = f"{key} = {rng.choice(_WEIRD)}"
-        elif op < 0.7:
-            del lines[i]
-        elif op < 0.8:
-            lines.insert(i, f"{key}_typo = 1")
-        elif op < 0.9:
-            j = rng.randrange(len(lines))
-            lines[j] = lines[j][: rng.randrange(len(lines[j]) + 1)]
-        else:
-            lines.insert(rng.randrange(len(lines)), rng.choice(
-                ["[machine]", "[[scene.parts]]", "# Fräsmaschine ✓", "\ufeff", "x = ", "[test"]))
-    return "\n".join(lines) + "\n"
-
-
 def test_fuzz_config_loader():
     """Seeded mutations of the bundled samples: every one is either a valid config or a
     ConfigError with one line naming the file; nothing else escapes."""
@@ -507,7 +482,7 @@ def test_fuzz_config_loader():
     cases = int(os.environ.get("SDIT_FUZZ_CASES", "400"))  # a longer campaign on request
     tried = accepted = 0
     for _ in range(cases):
-        text = _mutate_config(rng.choice(bases), rng)
+        text = mutate_config(rng.choice(bases), rng)
         tried += 1
         try:
             parse_config(text, "fuzz.toml")
@@ -519,32 +494,6 @@ def test_fuzz_config_loader():
     print(f"config fuzz: {tried} tried, {accepted} accepted")
 
 
-def _mutate_trace(text: str, rng: random.Random) -> str:
-    lines = text.splitlines()
-    for _ in range(rng.randint(1, 3)):
-        i = rng.randrange(len(lines))
-        op = rng.random()
-        if op < 0.25:
-            lines[i] = lines[i][: rng.randrange(len(lines[i]) + 1)]
-        elif op < 0.4:
-            del lines[i]
-        elif op < 0.55:
-            lines[i] = lines[i] + rng.choice([",", ";", "\t", ",1", '"', ",,"])
-        elif op < 0.7:
-            parts = lines[i].split(",")
-            parts[rng.randrange(len(parts))] = rng.choice(
-                ["", "nan", "inf", "-1e308", "x", "1,5", "１２", "0x10", "1e999", '"3"'])
-            lines[i] = ",".join(parts)
-        elif op < 0.8:
-            j = rng.randrange(len(lines))
-            lines[i], lines[j] = lines[j], lines[i]
-        elif op < 0.9:
-            lines.insert(i, rng.choice(["# x: y", "", "t_s,delta_l_um", "\ufeff", "#"]))
-        else:
-            lines = [ln.replace(",", ";") for ln in lines]
-    return "\n".join(lines) + "\n"
-
-
 def test_fuzz_recording_reader(tmp_path):
     """Seeded mutations of a small recording: read or refused with one line naming the
     file; a reading it accepts has increasing finite times and no infinite values."""
@@ -554,7 +503,7 @@ def test_fuzz_recording_reader(tmp_path):
     cases = int(os.environ.get("SDIT_FUZZ_CASES", "300"))
     tried = accepted = 0
     for _ in range(cases):
-        p.write_text(_mutate_trace(base, rng), encoding="utf-8")
+        p.write_text(mutate_trace(base, rng), encoding="utf-8")
         tried += 1
         try:
             tr = read_trace(p)

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 from ..diagnose import Diagnosis
 from ..diagnose.recording import AlignedRecording
+from ..identify.results import Identification
 from ..reading.context import Context
 from ..reading.trace import Trace
 
@@ -33,14 +34,15 @@ class Analysed:
 @dataclass(frozen=True, slots=True)
 class AnalysisResult:
     """The recordings of one test analysed together: ``recordings`` in the order given,
-    ``geometry`` (the identification's report with the effects found as nuisances) and
-    ``warnings`` (one line each)."""
+    ``geometry`` (identified with the effects found as nuisances) and ``warnings`` (one
+    line each)."""
 
     recordings: tuple[Analysed, ...]
-    geometry: Mapping
+    geometry: Identification
     warnings: tuple[str, ...]
 
     def to_json(self) -> dict:
+        geometry = self.geometry.to_json()
         per = []
         across: dict[str, list] = {}
         for k, a in enumerate(self.recordings):
@@ -52,7 +54,7 @@ class AnalysisResult:
                      "contribution_rms_um": f["contribution_rms_um"]})
             per.append({"file": a.label, "program": a.program, "matched": a.matched,
                         "first_alignment": a.aligned.as_json(), "diagnosis": dj,
-                        "nuisances": self.geometry["nuisances"][k]})
-        return {"recordings": per, "geometry": self.geometry,
-                "aliasing": self.geometry.get("aliasing", []),
+                        "nuisances": geometry["nuisances"][k]})
+        return {"recordings": per, "geometry": geometry,
+                "aliasing": geometry.get("aliasing", []),
                 "across_recordings": across, "warnings": list(self.warnings)}

@@ -27,6 +27,7 @@ from ..errormodel.model import ModelOptions
 from ..errors import RecordingError
 from ..heap import reusing_freed_memory
 from ..identify.identify import ExtraGroup, first_gram, identification_model, identify
+from ..identify.results import Identification
 from ..parallel import each
 from ..plan.files import PlanFiles
 from ..reading.context import Context
@@ -132,7 +133,7 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
     geo0 = identify([(plan, rec.program, _every(rec.trace, 5)) for _, _, rec, _ in first], options,
                     extra=generic, jobs=jobs)
     model0 = ErrorSet("geometry identified from the recordings", options,
-                      tuple(geo0["model_state"].items()))
+                      tuple(geo0.model_state.items()))
     def diagnosed(k):
         label, how, rec, trace = first[k]
         ctx = program_context(plan, rec.program, contexts)
@@ -186,14 +187,14 @@ def _on_program_time(label: str, rec: AlignedRecording, trace: Trace, d: Diagnos
                  {**trace.header, "program": rec.program, "source": f"aligned {label}"})
 
 
-def _result(done: list[Analysed], geometry: dict) -> AnalysisResult:
+def _result(done: list[Analysed], geometry: Identification) -> AnalysisResult:
     """The analysis, with a warning where geometry and effects leave more than the
     recordings' noise and one per recording whose rest no effect explains."""
     warnings = []
     noise = max(a.aligned.noise_um for a in done)
-    if poor_fit(geometry["noise_std_um"], noise):
+    if poor_fit(geometry.noise_std_um, noise):
         warnings.append(
-            f"geometry and effects together leave {geometry['noise_std_um']:.2f} um RMS against "
+            f"geometry and effects together leave {geometry.noise_std_um:.2f} um RMS against "
             f"the recordings' own noise of at most {noise:.2f} um: a set-up that moved, an effect "
             f"the library lacks, or a recording of something else (see each recording's "
             f"unexplained part)")

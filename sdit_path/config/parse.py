@@ -32,19 +32,20 @@ _ROTARY_KEYS = ("type", "direction", "point_mm", "travel_deg", "max_velocity_deg
 
 
 def _unit_vector(r: Reader, data: dict, key: str, default) -> tuple[float, float, float]:
-    v = r.vector(data, key, 3, default=default)
-    n = math.sqrt(sum(x * x for x in v))
+    x, y, z = r.xyz(data, key, default=default)
+    n = math.sqrt(x * x + y * y + z * z)
     if n < 1e-12:
         raise r.fail(key, "expected a non-zero direction vector")
-    return tuple(x / n for x in v)
+    return (x / n, y / n, z / n)
 
 
 def _axis(r: Reader, a: dict, key: str, name: str, on_workpiece: bool) -> Axis:
     kind = r.string(a, f"{key}.type", "rotary" if name in "ABC" else "linear", ("linear", "rotary"))
     r.no_unknown(a, key, _ROTARY_KEYS if kind == "rotary" else _LINEAR_KEYS)
-    default = DEFAULT_DIRECTION[name]
+    default: tuple[float, float, float] = DEFAULT_DIRECTION[name]
     if kind == "linear" and on_workpiece:
-        default = tuple(-x for x in default)  # the table moves against the program axis
+        # the table moves against the program axis
+        default = (-default[0], -default[1], -default[2])
     direction = _unit_vector(r, a, f"{key}.direction", default)
     if kind == "linear":
         lo, hi = r.vector(a, f"{key}.travel_mm", 2, unit="mm", bound=1e5)
@@ -52,7 +53,7 @@ def _axis(r: Reader, a: dict, key: str, name: str, on_workpiece: bool) -> Axis:
     else:
         lo, hi = r.vector(a, f"{key}.travel_deg", 2, unit="deg", bound=1e5)
         scale, unit = math.pi / 180.0, "deg"
-        point = r.vector(a, f"{key}.point_mm", 3, default=(0.0, 0.0, 0.0), unit="mm")
+        point = r.xyz(a, f"{key}.point_mm", default=(0.0, 0.0, 0.0), unit="mm")
     if not lo < hi:
         raise r.fail(f"{key}.travel_{unit}", f"expected [min, max] with min < max, got [{lo:g}, {hi:g}]")
     # plausibility bounds: the slowest and the fastest machine tools, with room to spare
@@ -120,8 +121,8 @@ def _det3(rows) -> float:
 def _ballbar(r: Reader, root: dict, machine: MachineConfig) -> BallbarConfig:
     b = r.table(root, "ballbar", ("bar_length_mm", "pivot_mm", "ball_diameter_mm",
                                   "bar_diameter_mm", "sensor_range_mm", "length_range_mm"))
-    length_range = r.vector(b, "ballbar.length_range_mm", 2, default=(50.0, 600.0), unit="mm",
-                            bound=3000)
+    length_range = r.span(b, "ballbar.length_range_mm", default=(50.0, 600.0), unit="mm",
+                          bound=3000)
     if not 0 < length_range[0] <= length_range[1]:
         raise r.fail("ballbar.length_range_mm",
                      f"expected [min, max] with 0 < min <= max, got {list(length_range)}")
@@ -140,7 +141,7 @@ def _ballbar(r: Reader, root: dict, machine: MachineConfig) -> BallbarConfig:
     if bar > ball:
         raise r.fail("ballbar.bar_diameter_mm",
                      f"expected a bar no thicker than the balls ({ball:g} mm), got {bar:g}")
-    pivot = r.vector(b, "ballbar.pivot_mm", 3, unit="mm")
+    pivot = r.xyz(b, "ballbar.pivot_mm", unit="mm")
     return BallbarConfig(bar_length_mm=length, pivot_mm=pivot, ball_diameter_mm=ball,
                          bar_diameter_mm=bar, sensor_range_mm=sensor, length_range_mm=length_range)
 
@@ -358,8 +359,8 @@ def _scene(r: Reader, root: dict, machine: MachineConfig) -> SceneConfig:
         if shape == "mesh" and not mesh:
             raise r.fail(f"{key}.mesh_file", "a mesh part needs mesh_file (an STL path)")
         parts.append(ScenePart(name=name, body=body, shape=shape, size_mm=size,
-                               position_mm=r.vector(p, f"{key}.position_mm", 3, default=(0, 0, 0),
-                                                    unit="mm"),
+                               position_mm=r.xyz(p, f"{key}.position_mm", default=(0, 0, 0),
+                                                 unit="mm"),
                                axis=_unit_vector(r, p, f"{key}.axis", (0.0, 0.0, 1.0)),
                                mesh_file=mesh))
     allowed = []

@@ -15,16 +15,16 @@ def line_of(text: str, dotted: str) -> int | None:
     """Best-effort line number (1-based) of a dotted key in TOML text."""
     m = re.fullmatch(r"(.+)\[(\d+)\](?:\.(.+))?", dotted)
     if m:  # an array of tables: the k-th [[table]] header, then the key below it
-        table, k, key = m.group(1), int(m.group(2)), m.group(3)
+        array, k, item = m.group(1), int(m.group(2)), m.group(3)
         lines = text.splitlines()
         starts = [i for i, raw in enumerate(lines)
-                  if re.match(rf"^\s*\[\[\s*{re.escape(table)}\s*\]\]", raw)]
+                  if re.match(rf"^\s*\[\[\s*{re.escape(array)}\s*\]\]", raw)]
         if k >= len(starts):
             return None
         end = next((i for i in range(starts[k] + 1, len(lines))
                     if re.match(r"^\s*\[", lines[i])), len(lines))
         for i in range(starts[k] + 1, end):
-            if key and re.match(rf"^\s*{re.escape(key)}\s*=", lines[i]):
+            if item and re.match(rf"^\s*{re.escape(item)}\s*=", lines[i]):
                 return i + 1
         return starts[k] + 1
     parts = dotted.split(".")
@@ -146,6 +146,18 @@ class Reader:
             raise self.fail(key, f"expected values within +-{bound:g}{unit_text(unit)} (a plausible "
                                  f"machine), got {[float(f'{v:.6g}') for v in out]}")
         return out
+
+    def xyz(self, data: dict, key: str, default: tuple | None = None, unit: str = "",
+            bound: float = 1e4) -> tuple[float, float, float]:
+        """:meth:`vector` of a point or a direction."""
+        x, y, z = self.vector(data, key, 3, default, unit, bound)
+        return (x, y, z)
+
+    def span(self, data: dict, key: str, default: tuple | None = None, unit: str = "",
+             bound: float = 1e4) -> tuple[float, float]:
+        """:meth:`vector` of a range ``[min, max]`` (not checked for order here)."""
+        lo, hi = self.vector(data, key, 2, default, unit, bound)
+        return (lo, hi)
 
     def numbers(self, data: dict, key: str, default: tuple, unit: str = "") -> tuple[float, ...]:
         name = key.rsplit(".", 1)[-1]

@@ -69,8 +69,13 @@ class BSplineCurve:
         return hom[:, :3] / hom[:, 3:4]
 
     def to_geomdl(self):
-        """A :class:`geomdl.NURBS.Curve` for exchange (geomdl rescales knots to [0, 1])."""
-        from geomdl import NURBS
+        """A :class:`geomdl.NURBS.Curve` for exchange (geomdl rescales knots to [0, 1]);
+        geomdl is an optional dependency (``pip install sdit-path[exchange]``)."""
+        try:
+            from geomdl import NURBS
+        except ImportError:
+            raise ImportError("BSplineCurve.to_geomdl needs geomdl: pip install "
+                              "'sdit-path[exchange]'") from None
 
         curve = NURBS.Curve()
         curve.degree = self.degree

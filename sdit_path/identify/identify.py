@@ -40,6 +40,7 @@ from ..machine.schedule import RotarySchedule
 from ..plan.files import PlanFiles
 from ..reading.trace import Trace
 from ..timing.trajectory import axis_values_rad
+from .results import Identification
 
 DETERMINED = 0.5  # standard uncertainty below this share of the prior magnitude
 
@@ -378,8 +379,8 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
              prior: bool = False, ask: tuple[str, ...] = (),
              extra: list[np.ndarray | None] | None = None,
              groups: list[list["ExtraGroup"]] | None = None, jobs: int = 1,
-             prepared: dict[int, tuple[Gram, dict]] | None = None) -> dict:
-    """Identify from one or more traces; returns the report as a plain dict.
+             prepared: dict[int, tuple[Gram, dict]] | None = None) -> Identification:
+    """Identify from one or more traces.
 
     ``jobs``: threads over the experiments for their normal equations (numpy leaves the
     interpreter while it multiplies; each experiment's sums are made alone, in the same
@@ -529,7 +530,7 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
     if ask:
         report["asked"] = [_suggest(name, model, experiments, grams, sigma, individually)
                            for name in ask]
-    return report
+    return Identification.from_parts(**report)
 
 
 @dataclass(frozen=True, slots=True)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 from pathlib import PurePath
 
 import numpy as np
@@ -126,8 +127,8 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
         run: Run = item
         label = f"layer {path.layer}"
         run_f = run.feed_mm_per_min  # a re-planned sector at its own feed
+        rotary: tuple[tuple[str, np.ndarray], ...] = ()
         if frame in ("table", "traori") and path_form == "spline":
-            rotary = ()
             if frame == "traori":
                 ctrl, carry = rotary_controls(run.curve, track, carry, decimals)
                 rotary = tuple((n, ctrl[n]) for n in rot_names)
@@ -138,24 +139,25 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
         elif frame == "machine" and path_form == "spline":
             qcurve, devs, carry = machine_spline(run, track, carry, hemi.centre_mm, hemi.radius_mm,
                                                  spline_tol, decimals, label)
-            ctrl = qcurve.control_points_mm
-            xyz_curve = BSplineCurve(qcurve.degree, qcurve.knots, ctrl[:, lin])
-            rotary = tuple((n, np.degrees(ctrl[:, kin.index[n]])) for n in rot_names)
+            qctrl = qcurve.control_points_mm
+            xyz_curve = BSplineCurve(qcurve.degree, qcurve.knots, qctrl[:, lin])
+            rotary = tuple((n, np.degrees(qctrl[:, kin.index[n]])) for n in rot_names)
             body.append(SplineMove(xyz_curve, run_f, _knot_interval(qcurve, run),
                                    _labels(qcurve, run), rotary))
             note(run, devs)
-            current_q = ctrl[-1]
+            current_q = qctrl[-1]
         elif frame == "machine":
             q, lengths, labels, devs, carry = machine_chords(
                 run, track, carry, hemi.centre_mm, hemi.radius_mm, chord_tol, decimals,
-                current_q, label)
+                cast(np.ndarray, current_q), label)
             rotary = tuple((n, np.degrees(q[:, kin.index[n]])) for n in rot_names)
             body.append(PolylineMove(q[:, lin], run_f, labels, rotary,
                                      run_f / np.maximum(lengths, 1e-9)))
             note(run, devs)
             current_q = q[-1]
         else:  # table-frame chords
-            points, labels = [], []
+            points: list[np.ndarray] = []
+            labels = []
             end_node = (round_to_decimals(hemi.node(run.end_node).position_mm, decimals)
                         if run.end_node else run.curve.control_points_mm[-1])
             for k, piece in enumerate(run.pieces):

@@ -172,7 +172,9 @@ def machine_chords(run: Run, track: AxisTrack, carry: float | None, centre: np.n
     kin = track.kin
     curve = run.curve
     chord = math.sqrt(8.0 * radius * tolerance_mm) * 0.9
-    qs, labels, devs = [], [], []
+    qs: list[np.ndarray] = []
+    labels: list[tuple[int, str]] = []
+    devs: list[float] = []
     current = start_q
     carry_now = carry
     for k, piece in enumerate(run.pieces):

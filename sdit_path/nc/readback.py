@@ -26,7 +26,7 @@ class ReadProgram:
     every programmed end point in order; ``traori``: TRAORI was switched on."""
 
     splines: tuple[BSplineCurve, ...]
-    dwells: tuple[tuple[int, float, tuple[float, float, float]], ...]
+    dwells: tuple[tuple[int, float, tuple[float, ...]], ...]
     points_mm: np.ndarray
     spline_rotary: tuple[dict[str, np.ndarray], ...] = ()
     traori: bool = False

@@ -79,8 +79,8 @@ def read_trace(path: str | Path) -> Trace:
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        raise TraceError(f"{p}:{line}: not UTF-8 text") from None
+        lineno = raw[: exc.start].count(b"\n") + 1
+        raise TraceError(f"{p}:{lineno}: not UTF-8 text") from None
     header: dict[str, str] = {}
     lines = text.splitlines()
     k0 = 0

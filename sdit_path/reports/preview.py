@@ -21,6 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: E402
 
+from ..plan.preview import Preview  # noqa: E402
 from ..timing.trajectory import Samples  # noqa: E402
 
 _PNG = {"Software": None}
@@ -194,41 +195,22 @@ def hemisphere_figure(s: Samples, others: list[np.ndarray], centre: np.ndarray, 
     return _png(fig)
 
 
-def preview_files(result, rate_hz: float = 1000.0, on_step=None) -> dict[str, bytes]:
+def preview_files(pv: Preview, on_step=None) -> dict[str, bytes]:
     """``<program>_speed.png``, ``_axes.png`` and ``_hemisphere.png`` per planned layer."""
-    from ..timing.trajectory import Timer, sample
-
-    cfg = result.config
-    timer = Timer(cfg)
-    hemi = result.hemisphere
-    limits = {}
-    for ax in timer.kin.axes:
-        scale = np.degrees(1.0) if ax.is_rotary else 1.0
-        limits[ax.name] = (ax.max_velocity * scale, ax.max_acceleration * scale,
-                           ax.max_jerk * scale)
-    layer_points = {}
-    sampled = {}
-    for lp in result.layers:
-        if lp.timed is None:
-            continue
-        smp = sample(lp.timed, timer, rate_hz)
-        sampled[lp.path.layer] = smp
-        layer_points[lp.path.layer] = smp.ball_mm[smp.phase != "dwell"][::10]
+    layer_points = {lp.layer: lp.samples.ball_mm[lp.samples.phase != "dwell"][::10]
+                    for lp in pv.layers}
     files = {}
-    nodes = [(n.id, n.position_mm) for n in hemi.nodes]
-    tracks = [float(np.degrees(t.elevation_rad)) for t in hemi.tracks]
-    feed = cfg.test.feed_mm_per_min
-    for lp in result.layers:
-        if lp.path.layer not in sampled:
-            continue
-        name = next(p.built.program.name for p in result.programs if p.layer == lp.path.layer)
-        smp = sampled[lp.path.layer]
-        title = (f"{name} (layer {lp.path.layer}, F{feed:g}, cycle {lp.timed.duration_s:.1f} s)")
-        files[f"{name}_speed.png"] = speed_figure(smp, title, feed)
-        files[f"{name}_axes.png"] = axes_figure(smp, title, limits)
-        others = [v for k, v in layer_points.items() if k != lp.path.layer]
-        files[f"{name}_hemisphere.png"] = hemisphere_figure(
-            smp, others, hemi.centre_mm, hemi.radius_mm, tracks, nodes, title, feed)
+    nodes = list(pv.nodes)
+    tracks = list(pv.tracks_deg)
+    feed = pv.feed_mm_per_min
+    for lp in pv.layers:
+        smp = lp.samples
+        title = (f"{lp.program} (layer {lp.layer}, F{feed:g}, cycle {lp.cycle_s:.1f} s)")
+        files[f"{lp.program}_speed.png"] = speed_figure(smp, title, feed)
+        files[f"{lp.program}_axes.png"] = axes_figure(smp, title, pv.limits)
+        others = [v for k, v in layer_points.items() if k != lp.layer]
+        files[f"{lp.program}_hemisphere.png"] = hemisphere_figure(
+            smp, others, pv.centre_mm, pv.radius_mm, tracks, nodes, title, feed)
         if on_step:
-            on_step(f"preview of layer {lp.path.layer} drawn")
+            on_step(f"preview of layer {lp.layer} drawn")
     return files

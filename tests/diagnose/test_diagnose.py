@@ -255,12 +255,12 @@ def test_more_bad_input(plan_dir, tmp_path):
 
 
 def test_blind_check_on_the_independent_generator(plan_dir, tmp_path):
-    """``bench/blind_check.py`` end to end on two recordings of the independent
+    """``validation/blind_check.py`` end to end on two recordings of the independent
     generator (nothing of sdit_path in it): a clean trace gets no finding, and a mount
     slip half-way (a step of the set-up no effect holds) is left unexplained without a
     confident finding while the timing stays within its bounds - the step is taken out
     of the reading for the timing, not bent into the clock."""
-    bench = Path(__file__).resolve().parents[2] / "bench"
+    bench = Path(__file__).resolve().parents[2] / "validation"
     out = tmp_path / "blind.json"
     r = subprocess.run([sys.executable, str(bench / "blind_check.py"), "--case",
                         f"{plan_dir}:{PROGRAM}", "--only", "0,13", "--jobs", "2", "--json",
@@ -607,10 +607,10 @@ def test_the_set_up_is_read_again_at_rest_where_a_dynamic_model_misses():
 
 
 def _independent_generator():
-    """``bench/physics_gen.py`` (it imports nothing of sdit_path) as a module."""
+    """``validation/physics_gen.py`` (it imports nothing of sdit_path) as a module."""
     import importlib.util
 
-    path = Path(__file__).resolve().parents[2] / "bench" / "physics_gen.py"
+    path = Path(__file__).resolve().parents[2] / "validation" / "physics_gen.py"
     spec = importlib.util.spec_from_file_location("physics_gen", path)
     gen = importlib.util.module_from_spec(spec)
     sys.modules.setdefault("physics_gen", gen)

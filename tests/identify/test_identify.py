@@ -73,7 +73,7 @@ def test_identifiable_combinations_are_recovered_within_three_sigma(plan_dir):
             experiments.append((plan_dir, prog, dataclasses.replace(
                 tr, t_s=tr.t_s[keep], delta_l_um=tr.delta_l_um[keep], segment=tr.segment[keep],
                 phase=tr.phase[keep])))
-        report = identify(experiments, options)
+        report = identify(experiments, options).to_json()
         assert report["determined"] <= report["rank"] <= len(model.parameters)
         for c in report["combinations"]:
             coef = np.zeros(len(model.parameters))
@@ -122,7 +122,7 @@ def test_table2_is_simulated_and_the_determined_numbers_come_back(plan_dir):
     es = load_error_set("paper_table2")
     experiments = [(plan_dir, p, simulate_trace(plan_dir, p, es, noise_um=0.2, seed=3))
                    for p in ("SDIT_A", "SDIT_E")]
-    report = identify(experiments, es.options, ask=("EXX",))
+    report = identify(experiments, es.options, ask=("EXX",)).to_json()
     assert report["rank"] == 2 and report["determined"] == 2
     got = {d["parameter"]: d for d in report["identifiable_parameters"]}
     truth = es.as_dict()
@@ -140,7 +140,7 @@ def test_table2_is_simulated_and_the_determined_numbers_come_back(plan_dir):
 def test_prior_labels_come_from_the_resolution_matrix(plan_dir):
     es = load_error_set("paper_table2")
     tr = simulate_trace(plan_dir, "SDIT_B", es, noise_um=0.2, seed=4)
-    report = identify([(plan_dir, "SDIT_B", tr)], es.options, prior=True)
+    report = identify([(plan_dir, "SDIT_B", tr)], es.options, prior=True).to_json()
     labels = {d["parameter"]: d["label"] for d in report["prior_estimates"]}
     determined = {d["parameter"] for d in report["identifiable_parameters"]}
     assert all(labels[n] == "data-determined" for n in determined)
@@ -156,7 +156,7 @@ def test_a_second_tool_length_is_found_to_help_when_it_does(plan_dir):
     options = ModelOptions(linear_order=1, squareness=True, location=False)
     es = ErrorSet("t", options, (("EC0Y", 10.0),))
     tr = simulate_trace(plan_dir, "SDIT_A", es, noise_um=0.2, seed=5)
-    report = identify([(plan_dir, "SDIT_A", tr)], options, ask=("EAZ.P1", "EC0Y"))
+    report = identify([(plan_dir, "SDIT_A", tr)], options, ask=("EAZ.P1", "EC0Y")).to_json()
     by = {a["parameter"]: {r["set_up"]: r for r in a["needs"]} for a in report["asked"]}
     assert by["EAZ.P1"]["another tool length (+50 mm)"]["makes_identifiable"]
     assert not by["EAZ.P1"]["a second pivot height (+50 mm)"]["makes_identifiable"]
@@ -180,7 +180,7 @@ def test_normal_equations_made_ahead_give_the_same_identification(plan_dir):
     model, _ = identification_model([plan_dir], options)
     ahead = identify(experiments, options, prepared={1: first_gram(experiments[1], model)})
     assert ahead == alone
-    chain = alone["exact_chain"]
+    chain = alone.exact_chain
     assert chain["converged"] and chain["left_in_std"] < 0.01, chain
 
 
@@ -196,11 +196,11 @@ def test_the_exact_chain_stops_only_when_little_is_left(plan_dir, monkeypatch):
     experiments = [(plan_dir, p, simulate_trace(plan_dir, p, twice, noise_um=0.2, seed=7))
                    for p in ("SDIT_A", "SDIT_E")]
     quick = identify(experiments, options)
-    chain = quick["exact_chain"]
+    chain = quick.exact_chain
     assert chain["converged"] and chain["steps_in_std"][-1] > 0.01, chain  # stopped by the decay
     monkeypatch.setattr(ident, "_EXACT_STEP", 1e-6)
     monkeypatch.setattr(ident, "_EXACT_ITERATIONS", 12)
     full = identify(experiments, options)
-    assert full["exact_chain"]["iterations"] > chain["iterations"]
-    for a, b in zip(quick["combinations"], full["combinations"]):
+    assert full.exact_chain["iterations"] > chain["iterations"]
+    for a, b in zip(quick.combinations, full.combinations):
         assert abs(a["estimate"] - b["estimate"]) <= 0.01 * b["std"], (a["text"], b["text"])

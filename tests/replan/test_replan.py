@@ -13,7 +13,9 @@ import pytest
 
 from sdit_path.config import parse_config
 from sdit_path.plan.files import load_plan
-from sdit_path.replan import Limits, review, with_overrides
+from sdit_path.replan import Limits
+from sdit_path.replan.candidates import with_overrides
+from sdit_path.replan.evaluate import review
 
 GOLDEN = Path(__file__).resolve().parents[1] / "data" / "golden_small.toml"
 #: sector A2 with eight waves between its nodes: at F1000 the curvature caps the speed
@@ -163,8 +165,8 @@ def test_a_sector_run_too_fast_is_named_for_its_servo_sensitivity_and_slowed(bad
     from sdit_path.config import SectorCurve
     from sdit_path.interference.scene import Scene
     from sdit_path.machine.kinematics import Kinematics
-    from sdit_path.replan import (_with_information, candidates_for, evaluate_layer, judge,
-                                  servo_median)
+    from sdit_path.replan.candidates import candidates_for
+    from sdit_path.replan.evaluate import evaluate_layer, judge, servo_median, with_information
 
     plan = load_plan(bad_plan / "plan")
     cfg = with_overrides(plan.config, {"A2": SectorCurve("A2", waves_per_sector=1,
@@ -182,7 +184,7 @@ def test_a_sector_run_too_fast_is_named_for_its_servo_sensitivity_and_slowed(bad
     assert not [c for c in candidates_for(cfg, "A2", {"speed_dip"})
                 if c.feed_mm_per_min != 2500.0]
     ev = evaluate_layer(with_overrides(cfg, {"A2": slower[-1]}), "A", travel, kin, scene)
-    values = _with_information({**rev.layers, "A": ev}, rev.directions)
+    values = with_information({**rev.layers, "A": ev}, rev.directions)
     after = {sid: values[sid] for sid in ("A2-1", "A2-2")}
     assert judge(cfg, after, Limits(), servo_median(rev.values)) == {}
     ratio = after["A2-1"]["servo_um_per_ms"] / rev.values["A2-1"]["servo_um_per_ms"]
@@ -268,7 +270,7 @@ def test_a_pose_reason_on_moving_rotary_axes_tries_the_table_tilted_over_the_pat
     and reads back the same; a locked table is never offered a tilt."""
     from conftest import edit
     from sdit_path.config import SectorCurve, load_config, sample_path
-    from sdit_path.replan import TILT_OFFSETS_DEG, Candidate, candidates_for
+    from sdit_path.replan.candidates import TILT_OFFSETS_DEG, Candidate, candidates_for
 
     cfg = load_config(sample_path("bc_table_5axis.toml"))
     tilted = [c for c in candidates_for(cfg, "B2", {"clearance"}) if c.tilt_offset_deg]
@@ -299,7 +301,7 @@ def test_a_clearance_at_a_node_is_held_by_the_set_up_and_set_up_changes_are_plan
     judged by the clearance they leave."""
     from conftest import edit
     from sdit_path.config import sample_path
-    from sdit_path.replan import EQUATOR_TILT_DEG, setup_changes
+    from sdit_path.replan.setup import EQUATOR_TILT_DEG, setup_changes
 
     text = edit(sample_path("bc_table_5axis.toml").read_text(), "track_elevations_deg",
                 "[0.0, 45.0]")

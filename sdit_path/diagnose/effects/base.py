@@ -123,7 +123,8 @@ def ripple_gains(x: np.ndarray, g: np.ndarray, r: np.ndarray, inv: np.ndarray,
     g2, gr = g * g, g * r
     total = float(g2.sum())
     out = np.zeros(len(inv))
-    step = np.exp(2j * np.pi * x * (inv[1] - inv[0])) if len(inv) > 1 else None
+    # (one frequency alone never steps)
+    step = np.exp(2j * np.pi * x * (inv[1] - inv[0])) if len(inv) > 1 else np.ones(len(x), complex)
     for b in range(0, len(inv), block):
         m = min(block, len(inv) - b)
         Z = np.empty((m, len(x)), complex)

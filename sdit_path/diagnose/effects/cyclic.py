@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import numpy as np
 
 from .base import Effect, gain2, ripple_gains, linear_axes
@@ -10,7 +12,7 @@ from .base import Effect, gain2, ripple_gains, linear_axes
 class CyclicError(Effect):
     name, title = "cyclic_error", "ripple locked to an axis position (scale / screw pitch)"
     commonness, geometric = 9, True
-    limits = {"amplitude_um": 5.0}
+    limits = MappingProxyType({"amplitude_um": 5.0})
     pitch_range_mm = (4.0, 25.0)
 
     def search(self, ctx, s, r):

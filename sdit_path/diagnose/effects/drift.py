@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import numpy as np
 
 from .base import Effect
@@ -10,7 +12,7 @@ from .base import Effect
 class ThermalDrift(Effect):
     name, title = "thermal_drift", "slow drift in time: radial growth and pivot-to-spindle drift"
     commonness, geometric = 3, True
-    limits = {"*_um_per_h": 60.0}  # the brief: up to 40 um/h in a Z warm-up
+    limits = MappingProxyType({"*_um_per_h": 60.0})  # the brief: up to 40 um/h in a Z warm-up
 
     def columns(self, ctx, s, nl):
         th = s.tau_s / 3600.0

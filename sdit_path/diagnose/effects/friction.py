@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import numpy as np
 
 from ...reading.context import directions, reversals
@@ -22,14 +24,16 @@ class ReversalSpike(Effect):
     #: a pulse are a few hundredths of a micrometre apart (a 1.1 um stick-slip on Z at
     #: F2000, named a pulse by the simpler-finding rule).  They leave the start alike:
     #: no timing alias.
-    aliases = {"stick_slip":
-               "run the layer again at a second feed (a friction pulse grows with the feed; a "
-               "stick-slip lives where an axis crawls, below about 200 mm/min, and lasts longer "
-               "at a lower feed)"}
+    aliases = MappingProxyType({
+        "stick_slip":
+            "run the layer again at a second feed (a friction pulse grows with the feed; a "
+            "stick-slip lives where an axis crawls, below about 200 mm/min, and lasts "
+            "longer at a lower feed)",
+    })
     reverse, feed_power = -1, 0.0
     # the brief: tau 10-100 ms; the pulse rises over a few ms (friction breaking away
     # through the velocity loop), it does not jump
-    limits = {"height_*": 50.0, "tau_ms": 100.0}
+    limits = MappingProxyType({"height_*": 50.0, "tau_ms": 100.0})
     grid_ms = (5.0, 8.0, 12.0, 18.0, 25.0, 35.0, 50.0, 70.0, 100.0)
     #: the rise (ms) is searched too: a velocity loop answers in 1-10 ms, and a rise
     #: held at 3 ms on a pulse that rose over 3.9 ms bent the timing 2.8 ms while the
@@ -103,13 +107,15 @@ class ReversalSpike(Effect):
             return None
         onsets = ((fixed["onset_mm_s"],) if fixed and "onset_mm_s" in fixed
                   else self.onsets_mm_s)
-        best = None
+        best: tuple | None = None
         for onset in onsets:
             score = self._scorer(ctx, s, r, onset)
             tau = grid_search(self.grid_ms, lambda t: score(t, self.rise_ms), np.geomspace)
             g = score(tau, self.rise_ms)
             if best is None or g > best[0]:
                 best = (g, onset, tau, score)
+        if best is None:
+            return None
         g, onset, tau, score = best
         rise = self.rise_ms
         for _ in range(2):
@@ -167,7 +173,7 @@ class StickSlip(Effect):
 
     name, title = "stick_slip", "saw-tooth while an axis crawls near a reversal"
     commonness, time_locked = 12, True
-    limits = {"amplitude_*": 8.0, "mean_lag_*": 8.0}
+    limits = MappingProxyType({"amplitude_*": 8.0, "mean_lag_*": 8.0})
     grid_um = (0.5, 0.8, 1.3, 2.0, 3.2, 5.0, 8.0, 12.0)
 
     def _cols(self, ctx, s, stick_um):

@@ -3,6 +3,8 @@ smooth geometry beyond the library."""
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import hashlib
 
 import numpy as np
@@ -63,17 +65,19 @@ class Squareness(ModelColumns):
     #: of few directions) cannot tell them apart (hard case: typical SDIT5_C blind case 8,
     #: a 24 urad XZ squareness read as a scale of X and Z with the squareness 2 % behind).
     #: Never merged when both are selected: a machine has both.
-    program_aliases = {"scale_mismatch":
-                       "measure a program whose bar directions cover each axis and the "
-                       "diagonals between the two axes independently (another layer or "
-                       "track, or the 3-axis sphere with the rotary axes still): a scale error "
-                       "reads the square of the bar's direction cosine along its axis, a "
-                       "squareness the product of the two axes' cosines"}
+    program_aliases = MappingProxyType({
+        "scale_mismatch":
+            "measure a program whose bar directions cover each axis and the diagonals "
+            "between the two axes independently (another layer or track, or the 3-axis "
+            "sphere with the rotary axes still): a scale error reads the square of the "
+            "bar's direction cosine along its axis, a squareness the product of the two "
+            "axes' cosines",
+    })
 
     @classmethod
     def covered_by(cls, options):
         return bool(options.squareness)
-    limits = {"*_urad": 200.0}  # the brief: 50-100 um/m on a bad machine
+    limits = MappingProxyType({"*_urad": 200.0})  # the brief: 50-100 um/m on a bad machine
     wanted = ("EC0Y", "EB0Z", "EA0Z")
 
     def parameters(self, coef, labels, nl, ctx):
@@ -87,7 +91,7 @@ class ScaleMismatch(ModelColumns):
     @classmethod
     def covered_by(cls, options):
         return options.linear_order >= 1
-    limits = {"*_um_per_m": 100.0}  # the brief: 30-60 um/m on a bad machine
+    limits = MappingProxyType({"*_um_per_m": 100.0})  # the brief: 30-60 um/m on a bad machine
     wanted = ("EXX.P1", "EYY.P1", "EZZ.P1")
 
     def parameters(self, coef, labels, nl, ctx):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import numpy as np
 
 from ...reading.context import Context
@@ -28,7 +30,7 @@ class Backlash(Effect):
     name, title = "backlash", "lost motion: a step at each reversal of an axis (play operator)"
     commonness = 4
     reverse, feed_power = -1, 0.0
-    limits = {"play_*": 80.0, "slack_at_start_*": 80.0}
+    limits = MappingProxyType({"play_*": 80.0, "slack_at_start_*": 80.0})
     grid_um = (0.5, 1.0, 2.0, 3.0, 4.5, 6.5, 9.0, 13.0, 18.0, 25.0, 35.0, 50.0)
 
     def search(self, ctx, s, r):
@@ -140,7 +142,7 @@ class LateralPlay(Effect):
     name, title = "lateral_play", "a step across the reversing axis (guide play)"
     commonness = 11
     reverse, feed_power = -1, 0.0
-    limits = {"play_*": 15.0}
+    limits = MappingProxyType({"play_*": 15.0})
 
     def columns(self, ctx, s, nl):
         cols, labels = [], []

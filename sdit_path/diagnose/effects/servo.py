@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import numpy as np
 
 from ...reading.context import Context
@@ -16,16 +18,18 @@ class ServoLag(Effect):
     #: the feed, one set as a time filter by (v sigma)^2 / (2 R) like the lag - then only
     #: the static nodes tell them apart (a lag arrives late and one-sided, a zero-phase
     #: filter leaves early and arrives late, symmetric about the stop).
-    aliases = {"contour_smoothing":
-               "run the layer again at a second feed (a path-tolerance smoothing does not grow "
-               "with the feed, a lag's shrink grows as its square) and compare how the reading "
-               "leaves and reaches the static nodes (a lag is one-sided, a zero-phase smoothing "
-               "symmetric)"}
+    aliases = MappingProxyType({
+        "contour_smoothing":
+            "run the layer again at a second feed (a path-tolerance smoothing does not grow "
+            "with the feed, a lag's shrink grows as its square) and compare how the reading "
+            "leaves and reaches the static nodes (a lag is one-sided, a zero-phase "
+            "smoothing symmetric)",
+    })
     #: the two readings put the start in different places (a lag carries its delay into
     #: the offset, a zero-phase smoothing does not)
     timing_alias = "contour_smoothing"
     reverse, feed_power = 1, 2.0
-    limits = {"tau_ms": 200.0}
+    limits = MappingProxyType({"tau_ms": 200.0})
     grid_ms = tuple(float(x) for x in np.round(np.geomspace(3.0, 150.0, 25), 3))
     timing_parameter = ("tau_ms", grid_ms)
 
@@ -88,7 +92,7 @@ class ServoMismatch(Effect):
     name, title = "servo_mismatch", "different servo lags per axis: ~v, flips with direction"
     commonness, time_locked = 6, True
     reverse, feed_power = -1, 1.0
-    limits = {"lag_*": 8.0, "common_lag_ms": 200.0}
+    limits = MappingProxyType({"lag_*": 8.0, "common_lag_ms": 200.0})
     grid_ms = (0.0, 3.0, 6.0, 10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0, 65.0, 80.0, 100.0)
     timing_parameter = ("common_lag_ms", grid_ms)
 

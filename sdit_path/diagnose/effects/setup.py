@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import numpy as np
 
 from .base import Effect
@@ -10,7 +12,7 @@ from .base import Effect
 class SetupOffset(Effect):
     name, title = "setup_offset", "ball centring / set-up offset of the pivot"
     commonness, geometric, mounting = 0, True, True
-    limits = {"d*": 2000.0}
+    limits = MappingProxyType({"d*": 2000.0})
 
     @classmethod
     def covered_by(cls, options):
@@ -28,7 +30,7 @@ class BarLength(Effect):
     #: may have stood in for it, and the first pass named only what helped there
     #: (hard case: SDIT_B blind case 43, a cyclic error that left a spurious scale error)
     judged_again = True
-    limits = {"dL_um": 1000.0}
+    limits = MappingProxyType({"dL_um": 1000.0})
 
     @classmethod
     def covered_by(cls, options):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import numpy as np
 
 from ...reading.context import Context
@@ -20,7 +22,7 @@ class ContourSmoothing(Effect):
     name, title = "contour_smoothing", "the control shortcuts the path (spatial low-pass)"
     commonness, time_locked = 13, True
     reverse, feed_power = 1, 2.0
-    limits = {"shortcut_um": 40.0}
+    limits = MappingProxyType({"shortcut_um": 40.0})
     grid_mm = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0)
     sigma_grid_ms = (2.0, 3.0, 5.0, 8.0, 12.0, 18.0, 25.0, 35.0, 50.0)
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import numpy as np
 
 from ...reading.context import sample_at
@@ -44,7 +46,7 @@ class Vibration(Effect):
 
     name, title = "vibration", "vibration: an axis' structural mode rung by its acceleration, or a steady ripple"
     commonness, time_locked = 10, True
-    limits = {"amplitude_*": 10.0, "peak_*": 10.0}
+    limits = MappingProxyType({"amplitude_*": 10.0, "peak_*": 10.0})
     band_hz = (8.0, 250.0)
     dampings = (0.02, 0.05, 0.12)
 

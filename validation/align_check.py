@@ -5,8 +5,8 @@ For each case a recording is written to a file, ``sdit-path diagnose --json`` ru
 that file alone, and only then is its alignment compared with the truth the generator
 kept: offset error against the following delay + 2 ms, clock error against 5 ppm.
 
-    python bench/align_check.py --plan P --program SDIT_C [--cases 24] [--seed 1] [--jobs 2]
-    python bench/align_check.py --plan P --program SDIT_C --probe 0   # timing information
+    python validation/align_check.py --plan P --program SDIT_C [--cases 24] [--seed 1] [--jobs 2]
+    python validation/align_check.py --plan P --program SDIT_C --probe 0   # timing information
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ def one(plan: str, program: str, pd_, k: int, seed: int) -> dict:
 def probe(plan: str, program: str, pd_, k: int, seed: int) -> None:
     """How much timing information case ``k`` holds: the residual RMS of the
     diagnoser's generic alignment model at the true alignment and shifted from it."""
-    from sdit_path.diagnose.align import _fit_rms, generic_columns  # noqa: private, a probe
+    from sdit_path.diagnose.align import _fit_rms, generic_columns  # a probe of the internals
     from sdit_path.reading.context import build_context
     from sdit_path.plan.files import load_plan
 

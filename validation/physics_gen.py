@@ -474,7 +474,7 @@ def record(pd_: PlanData, case: Case | None, seed: int) -> tuple[str, dict]:
 
 
 def main() -> None:
-    """``python bench/physics_gen.py PLAN PROGRAM``: checks this generator's own
+    """``python validation/physics_gen.py PLAN PROGRAM``: checks this generator's own
     kinematics against the plan (the commanded trajectory must lie on the sphere)."""
     import sys
 

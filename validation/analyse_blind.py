@@ -15,7 +15,7 @@ analysis sees the plan and the recordings' files, nothing else; then it is score
   the case's own recordings named as another program.  Each must be refused with one
   line (no traceback) and no output folder.
 
-    python bench/analyse_blind.py [--plan-config tests/data/golden_small.toml] [--cases 10]
+    python validation/analyse_blind.py [--plan-config tests/data/golden_small.toml] [--cases 10]
                                   [--seed 1] [--json OUT] [--work DIR] [--no-refusals]
 """
 

@@ -11,7 +11,7 @@ how large those uncertainties are, and the bias the mismatch alone brings (the s
 recordings - same noise seed, set-up and instrument - made without it and identified:
 the difference isolates the dynamics from the noise).
 
-    python bench/replan_check.py [--case curvature|feed] [--trials 6] [--seed 1] [--work DIR]
+    python validation/replan_check.py [--case curvature|feed] [--trials 6] [--seed 1] [--work DIR]
                                 [--mismatch-ms 1.0]
 """
 

@@ -1,9 +1,9 @@
 """A fuzzing campaign from the outside: seeded mutations of the configs (the mutator of
-``tests/test_hostile.py``), each planned end to end by ``sdit-path plan`` in its own
-process with a time limit, counting what happened.  Nothing may end in a traceback, a
+``mutate.py``, which ``tests/test_hostile.py`` draws from too), each planned end to end
+by ``sdit-path plan`` in its own process with a time limit, counting what happened.  Nothing may end in a traceback, a
 signal (segmentation fault, abort), a hang or more than one error line.
 
-    python bench/fuzz_campaign.py [--cases 100] [--seed 1] [--timeout 120] [--jobs 2]
+    python validation/fuzz_campaign.py [--cases 100] [--seed 1] [--timeout 120] [--jobs 2]
 
 Half the cases scale numbers (mostly plausible configs that reach the planner's
 corners), half are the structural mutations of the tests.  Mutations are applied to the small golden config (two tracks, three nodes), so a plan
@@ -23,9 +23,9 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent / "tests"))
+sys.path.insert(0, str(HERE))
 
-from test_hostile import _mutate_config  # noqa: E402
+from mutate import mutate_config  # noqa: E402
 
 SMALL = HERE.parent / "tests" / "data" / "golden_small.toml"
 
@@ -84,7 +84,7 @@ def main() -> None:
     args = ap.parse_args()
     rng = random.Random(args.seed)
     base = SMALL.read_text(encoding="utf-8")
-    texts = [(_mutate_numbers if k % 2 == 0 else _mutate_config)(base, rng)
+    texts = [(_mutate_numbers if k % 2 == 0 else mutate_config)(base, rng)
              for k in range(args.cases)]
     with ThreadPoolExecutor(args.jobs) as pool:
         results = list(pool.map(lambda kt: one(kt[0], kt[1], args.timeout), enumerate(texts)))

@@ -5,7 +5,7 @@ found 65 % where this printed 96 %).  It stays as a regression fixture: a change
 breaks the diagnosis of its own models shows here first.  The blind check is
 ``blind_check.py`` (an independent generator, ``physics_gen.py``).
 
-    python bench/perturb_selfcheck.py [--cases 120] [--plan DIR] [--jobs 2] [--json OUT]
+    python validation/perturb_selfcheck.py [--cases 120] [--plan DIR] [--jobs 2] [--json OUT]
 
 Cases are stratified (case i: i % 10 in 0-1 clean, 2-5 one effect taking the library
 in turn, 6-7 two or three effects, 8-9 one effect outside the library); every

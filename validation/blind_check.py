@@ -2,10 +2,10 @@
 (``physics_gen.py``: its own kinematics, effects acting on the machine axes, its own
 instrument and a set-up residual in every trace; nothing from sdit_path).
 
-    python bench/blind_check.py [--per-program 51] [--plans DIR] [--seed 1] [--jobs 2]
+    python validation/blind_check.py [--per-program 51] [--plans DIR] [--seed 1] [--jobs 2]
                                 [--magnitudes bad|typical] [--json OUT]
-    python bench/blind_check.py --case PLAN:PROGRAM [--case ...] [--per-program 17] ...
-    python bench/blind_check.py --rescore OUT.json [--programs SDIT_C,SDIT_B]
+    python validation/blind_check.py --case PLAN:PROGRAM [--case ...] [--per-program 17] ...
+    python validation/blind_check.py --rescore OUT.json [--programs SDIT_C,SDIT_B]
 
 Without ``--case`` it plans the issue's three programs (SDIT_C of the default sample at
 F600, SDIT_B of it at F2000, SDIT5_C of the 5-axis sample) into ``--plans DIR`` (kept

@@ -1,0 +1,60 @@
+"""What a preview shows of a plan: every planned layer's timed trajectory sampled, the
+axes' limits, and the sphere with its tracks and static nodes (drawn by
+:mod:`sdit_path.reports.preview`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..timing.trajectory import Samples, Timer, sample
+from .pipeline import PlanResult
+
+
+@dataclass(frozen=True, slots=True)
+class LayerPreview:
+    """One layer's program (``program``, ``layer``, ``cycle_s``) and its trajectory
+    sampled (``samples``)."""
+
+    program: str
+    layer: str
+    cycle_s: float
+    samples: Samples
+
+
+@dataclass(frozen=True, slots=True)
+class Preview:
+    """``layers`` in the plan's order; ``limits``: axis -> (velocity, acceleration, jerk)
+    limits in mm or deg (per s, s^2, s^3); ``centre_mm``, ``radius_mm``, ``tracks_deg``
+    (elevations) and ``nodes`` ((id, position)) of the sphere; ``feed_mm_per_min``."""
+
+    layers: tuple[LayerPreview, ...]
+    limits: dict[str, tuple[float, float, float]]
+    centre_mm: np.ndarray
+    radius_mm: float
+    tracks_deg: tuple[float, ...]
+    nodes: tuple[tuple[str, np.ndarray], ...]
+    feed_mm_per_min: float
+
+
+def preview(result: PlanResult, rate_hz: float = 1000.0) -> Preview:
+    """The preview of a planned ``result``: each timed layer sampled at ``rate_hz``."""
+    cfg = result.config
+    timer = Timer(cfg)
+    hemi = result.hemisphere
+    limits = {}
+    for ax in timer.kin.axes:
+        scale = np.degrees(1.0) if ax.is_rotary else 1.0
+        limits[ax.name] = (ax.max_velocity * scale, ax.max_acceleration * scale,
+                           ax.max_jerk * scale)
+    layers = []
+    for lp in result.layers:
+        if lp.timed is None:
+            continue
+        name = next(p.built.program.name for p in result.programs if p.layer == lp.path.layer)
+        layers.append(LayerPreview(name, lp.path.layer, lp.timed.duration_s,
+                                   sample(lp.timed, timer, rate_hz)))
+    return Preview(tuple(layers), limits, hemi.centre_mm, hemi.radius_mm,
+                   tuple(float(np.degrees(t.elevation_rad)) for t in hemi.tracks),
+                   tuple((n.id, n.position_mm) for n in hemi.nodes), cfg.test.feed_mm_per_min)
