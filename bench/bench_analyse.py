@@ -15,6 +15,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from memory import peak_memory_line
 
 
 def cli(*args, **kw):
@@ -85,3 +86,4 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+    print(peak_memory_line())

@@ -36,6 +36,7 @@ from sdit_path.plan.files import load_plan  # noqa: E402
 from sdit_path.reading.recording import measured_csv  # noqa: E402
 from sdit_path.sim.perturb import draw_effect, draw_recording, perturb  # noqa: E402
 from sdit_path.reading.recording import read_trace  # noqa: E402
+from memory import peak_memory_line  # noqa: E402
 
 PROGRAM = "SDIT_A"
 
@@ -84,11 +85,13 @@ def main() -> None:
     n = len(measured.t_s)
     print(f"trace: {n} samples, {duration:.0f} s at 1 kHz; hidden: "
           f"{', '.join(h.name for h in hidden)}")
-    print(f"found: {', '.join(f.effect for f in result.findings) or '-'}; unexplained "
-          f"{result.unexplained['rms_um']:.3f} um; report {len(report)} bytes")
+    found = ", ".join(" or ".join([f.effect, *f.ambiguous_with]) for f in result.findings)
+    print(f"found: {found or '-'}; unexplained {result.unexplained['rms_um']:.3f} um; "
+          f"report {len(report)} bytes")
     print(f"diagnosis {seconds:.1f} s (reading plan + trace {t_read:.1f} s)")
     print(f"ratio trace duration / diagnosis time: {duration / seconds:.1f} (target >= 60)")
 
 
 if __name__ == "__main__":
     main()
+    print(peak_memory_line())

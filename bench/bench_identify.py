@@ -29,6 +29,7 @@ from sdit_path.plan.pipeline import plan
 from sdit_path.plan.files import load_plan
 from sdit_path.plan.manifest import plan_directory_files
 from sdit_path.sim.simulate import simulate_trace
+from memory import peak_memory_line
 
 NOISE_UM = 0.2
 QUANT_UM = 0.1
@@ -91,3 +92,4 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+    print(peak_memory_line())

@@ -26,6 +26,7 @@ from sdit_path.interference.scene import Scene
 from sdit_path.machine.kinematics import Kinematics
 from sdit_path.machine.poses import layer_poses
 from sdit_path.plan.pipeline import plan
+from memory import peak_memory_line
 
 TARGET = 20000
 
@@ -75,3 +76,4 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+    print(peak_memory_line())

@@ -25,6 +25,8 @@ from sdit_path.nc.chords import chords_for_range
 from sdit_path.nc.words import count_blocks
 from sdit_path.plan.pipeline import check_layer, post_layer
 
+from memory import peak_memory_line
+
 
 def main(argv: list[str]) -> None:
     cfg = load_config(argv[1] if len(argv) > 1 else None)
@@ -81,3 +83,4 @@ def main(argv: list[str]) -> None:
 
 if __name__ == "__main__":
     main(sys.argv)
+    print(peak_memory_line())

@@ -43,6 +43,7 @@ from sdit_path.config import load_config
 from sdit_path.geometry.hemisphere import partition
 from sdit_path.geometry.paths import PathBuilder
 from sdit_path.timing.trajectory import RunGeometry, TimedRun, Timer, axis_derivatives
+from memory import peak_memory_line
 
 logging.getLogger("toppra").setLevel(logging.ERROR)
 TARGETS = {200: 1.05, 600: 1.05, 2000: 1.05, 5000: 1.10}
@@ -159,3 +160,4 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+    print(peak_memory_line())

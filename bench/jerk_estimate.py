@@ -45,6 +45,7 @@ from sdit_path.config import load_config
 from sdit_path.geometry.hemisphere import partition
 from sdit_path.geometry.paths import PathBuilder
 from sdit_path.timing.trajectory import TimedRun, Timer, axis_derivatives
+from memory import peak_memory_line
 
 
 def estimate(timer: Timer, timed: TimedRun, feed: float, step_mm: float = 0.1,
@@ -173,3 +174,4 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+    print(peak_memory_line())

@@ -3,11 +3,10 @@
 The diagnosis builds and drops tall matrices by the thousand (a recording's model at
 120,000 samples by 70 columns is 67 MB).  glibc hands every block above its mmap
 threshold back to the kernel when it is freed, and the next one arrives as fresh
-zeroed pages: on ``bench/bench_analyse.py`` the kernel spent 20 s of 130 s faulting
-pages in.  While :func:`reusing_freed_memory` is active, large blocks come from the
-heap and stay there once freed (the peak resident memory stayed at 3.1 GB; the
-analysis took 114 s instead of 130 on one core, the output byte for byte the same).
-Elsewhere than glibc it does nothing.
+zeroed pages: faulting them in takes a good part of a long analysis' time.  While
+:func:`reusing_freed_memory` is active, large blocks come from the heap and stay there
+once freed (the peak resident memory hardly grows, and the output is the same byte for
+byte).  Elsewhere than glibc it does nothing.
 """
 
 from __future__ import annotations

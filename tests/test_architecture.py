@@ -182,3 +182,46 @@ def test_every_import_resolves():
                         and importlib.util.find_spec(f"{target}.{n}") is None:
                     missing.append(f"{SOURCES[name].relative_to(ROOT)}:{line}: {target} has no {n}")
     assert not missing, "\n".join(missing)
+
+
+def _effect_names() -> tuple[str, ...]:
+    from sdit_path.diagnose.effects import EFFECT_NAMES
+    return EFFECT_NAMES
+
+
+#: string literals that spell an effect's name but mean something else there: the
+#: geometric model's squareness option and parameter kind
+_NOT_AN_EFFECT = {("sdit_path.errormodel.model", "squareness"),
+                  ("sdit_path.errormodel.errorset", "squareness"),
+                  ("sdit_path.errormodel.chain", "squareness"),
+                  ("sdit_path.reports.identification", "squareness")}
+
+
+def test_only_the_effect_classes_and_the_simulator_name_an_effect():
+    """Adding an effect is a class, its registry entry and its physics in the simulator
+    and the generator; no other module of the package spells an effect's name."""
+    names = set(_effect_names())
+    bad = []
+    for name, path in SOURCES.items():
+        if name.startswith("sdit_path.diagnose.effects") or name == "sdit_path.sim.perturb":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if (isinstance(node, ast.Constant) and node.value in names
+                    and (name, node.value) not in _NOT_AN_EFFECT):
+                bad.append(f"{path.relative_to(ROOT)}:{node.lineno}: {node.value!r}")
+    assert not bad, "effects named outside their classes:\n" + "\n".join(bad)
+
+
+#: library effects the independent generator has no physics for yet (the set-up is in
+#: every one of its recordings, so it is not listed)
+_NOT_GENERATED = {"lateral_play"}
+
+
+def test_the_simulator_and_the_generator_know_the_library():
+    import physics_gen  # validation/ is on the path (conftest)
+
+    from sdit_path.sim.perturb import IN_LIBRARY
+
+    assert IN_LIBRARY == _effect_names(), "sim/perturb.py: IN_LIBRARY must list the library"
+    generated = set(physics_gen.EFFECTS) | {"setup_offset", "bar_length"}
+    assert set(_effect_names()) - generated == _NOT_GENERATED

@@ -90,8 +90,8 @@ def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
     seen = ("dwells on the recording's still windows: " + ", ".join(
         f"{p} {v:.2f}" for p, v in sorted(scores.items(), key=lambda kv: -kv[1]))
         if scores else "the recording stands still nearly throughout (its dwells say nothing)")
-    # a recording of its program scores 0.63-1.0 (every one made so far), another
-    # program of the same plan up to 0.42, another feed or plan 0.25: below DWELL_MATCH
+    # a recording of its program scores well above DWELL_MATCH, another program of the
+    # same plan about as much at most, another feed or plan far less: below DWELL_MATCH
     # no program of this plan was recorded (when the recording stands still at least
     # half as long as the programs dwell: else it cannot tell)
     telling = still is not None and scores and still.sum() >= 0.5 * min(

@@ -102,7 +102,7 @@ def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
     """``recordings``: (label, program or None, recording); ``jobs``: worker processes
     for the per-recording stages (matching, diagnosis); ``draw``: what draws a
     diagnosis' pictures (``sdit_path.reports.diagnosis.pictures``), run where each
-    recording was diagnosed (drawn one after another they took seconds), or None."""
+    recording was diagnosed (drawn one after another they take seconds), or None."""
     with threadpool_limits(limits=1, user_api="blas"), reusing_freed_memory():
         return _analyse(plan, recordings, options, step, note, jobs, draw)
 
@@ -140,7 +140,7 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
         d = diagnose(plan, rec.program, trace, model0, DIAGNOSIS,
                      progress=note if jobs <= 1 else None, ctx=ctx, alignment=rec.alignment)
         # the effect columns on the trajectory grid: made where the context's caches are
-        # (and the pictures in the worker too: drawn one after another they took seconds)
+        # (and the pictures in the worker too: drawn one after another they take seconds)
         return d, effect_columns(plan, d, options, ctx), draw(d, ctx) if draw else {}
 
     # the final geometry's first normal equations of a recording are made here as soon

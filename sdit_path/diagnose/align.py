@@ -77,7 +77,7 @@ def generic_columns(ctx: Context, expected_um: np.ndarray, extra: np.ndarray | N
     if extra is not None:
         extra = np.asarray(extra, float).reshape(ctx.n, -1)
         blocks.append(extra)
-        # every column's spread at once (row-major: column by column it read the whole
+        # every column's spread at once (row-major: column by column reads the whole
         # matrix once per column)
         spreads.append(np.ptp(extra, axis=0))
     X = np.column_stack(blocks)
@@ -128,8 +128,8 @@ def _block_mean(x: np.ndarray, w: np.ndarray, edges: np.ndarray) -> tuple[np.nda
 
 
 #: the coarse search correlates directly (a matrix product) when offsets x program
-#: blocks is at most this many times the transform length (measured: 3-8 times faster
-#: up to 500 offsets of a 250 s program, slower beyond 600)
+#: blocks is at most this many times the transform length (the product is several times
+#: faster up to a few hundred offsets, and slower beyond)
 DIRECT_CORRELATION = 200
 
 
@@ -150,7 +150,7 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
         raise AlignmentError("program too short to align")
     edges_p = np.arange(nb + 1) * per
     # columns at unit RMS: the small ridge that keeps the solves regular must not
-    # penalise a column for its units (it biased the search by tenths of a second)
+    # penalise a column for its units (it biases the search by tenths of a second)
     X = X / np.maximum(np.sqrt(np.mean(X * X, axis=0)), 1e-12)
     Xb = np.column_stack([_block_mean(X[:, a], np.ones(ctx.n), edges_p)[0]
                           for a in range(X.shape[1])])
@@ -325,8 +325,8 @@ def _negligible(d_off: float, d_k: float, std: tuple[float, float], tolerance: f
     ``tolerance`` of the standard uncertainties ``std`` (s, ppm)?  Never more than 0.1 ms
     and 0.1 ppm (an uncertainty at its bound says the data do not see the timing, not
     that any step is small), never less than 1 us and 0.01 ppm (below that the steps
-    chase rounding: the residual agreed to eight digits while the search went on
-    halving steps of a tenth of a microsecond)."""
+    chase rounding: the residual agrees to eight digits while the search goes on
+    halving sub-microsecond steps)."""
     off_tol = max(1e-6, min(tolerance * std[0], 1e-4))
     ppm_tol = max(0.01, min(tolerance * std[1], 0.1))
     return abs(d_off) <= off_tol and abs(d_k) * 1e6 <= ppm_tol
@@ -488,9 +488,10 @@ def local_scan(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, al: 
     The global search places the start to a block of 0.1 s and the rate to its grid
     (100 ppm on a 95 s program), and Gauss-Newton from there stops in the nearest
     minimum.  With reversal-locked shapes in the model the residual has minima a few
-    ms apart: a 9.6 um backlash at F2000 was polished to 15 ms and 35 ppm from the
-    truth (residual 0.172 um where the truth's neighbourhood gave 0.118) and a spike
-    then held the start 25 ms early, stated +- 0.3 ms."""
+    ms apart: a large play is polished into one of them, tens of ms and ppm from the
+    truth with a residual well above the truth's neighbourhood's, and a spurious pulse
+    then holds the start there while the timing states a fraction of a millisecond
+    (hard case: blind-bad-SDIT_B-s2-38)."""
     valid = np.flatnonzero(np.isfinite(y))
     if len(valid) < 100:
         return al

@@ -89,8 +89,9 @@ def judge_confidence(f: FindingDraft) -> None:
 
 def _size_unsure(f: FindingDraft) -> bool:
     """Every size the finding reports (its fitted parameters, not the searched ones)
-    lies within 2 standard uncertainties of zero: a mode's compliance of 0.91 +- 0.91
-    um per m/s^2 is not named with confidence, however much its columns took up."""
+    lies within 2 standard uncertainties of zero: a mode whose compliance is no larger
+    than its uncertainty is not named with confidence, however much its columns take up
+    (hard case: blind-bad-SDIT_B-s1-37)."""
     sizes = [k for k, v in f.parameters.items() if isinstance(v, float)
              and k not in f.nonlinear and k in f.uncertainty]
     return bool(sizes) and all(abs(f.parameters[k]) < 2.0 * f.uncertainty[k] for k in sizes)

@@ -92,8 +92,8 @@ def needed_blocks(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.nda
     """The blocks the recording needs beyond the generic columns and what was found, each
     judged on its own by the information criterion (samples counted by the residual's
     correlation) at the first alignment.  Columns a trace does not need only blur its
-    timing: on a slow 5-axis program two dozen unneeded geometry columns made the clock
-    two to three times less certain than the recording allows."""
+    timing: on a slow 5-axis program, whose reading hardly moves, unneeded geometry
+    columns leave the clock several times less certain than the recording allows."""
     tau = al.program_time(t_m)
     ok = np.flatnonzero(np.isfinite(y) & (tau >= ctx.t_s[0]) & (tau <= ctx.t_s[-1]))
     if len(ok) < 100:

@@ -194,10 +194,10 @@ def at_rest_check(ctx: Context, A: np.ndarray, beta: np.ndarray, cov: np.ndarray
 
     Beside a dynamic finding (a lag, a smoothing) the fit reads the set-up partly from
     the motion, through that finding's model; where the model's shape is not the
-    machine's, the set-up takes up the difference and the residual cannot show it (a
-    servo lag of the blind check's generator moved dz by 0.14 um against a stated
-    0.006), and so does a dynamic effect too small to be named (a 5-axis lag below the
-    noise moved it by 0.38 um against 0.02).  Were the models right, the two readings
+    machine's, the set-up takes up the difference, many times its stated uncertainty,
+    and the residual cannot show it (hard case: blind-bad-SDIT_C-s1-36, a servo lag);
+    so does a dynamic effect too small to be named (hard case: blind-bad-SDIT5_C-s1-19,
+    a 5-axis lag below the noise).  Were the models right, the two readings
     would differ with variance var(rest) - var(all); a difference beyond twice that
     spread adds its excess, as for the timing (:func:`settle`).  With too few settled
     samples nothing changes."""

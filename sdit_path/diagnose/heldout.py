@@ -55,9 +55,10 @@ def held_stretches(ctx: Context, every: int) -> np.ndarray:
 def _balance_reversals(ctx: Context, held: np.ndarray, every: int) -> np.ndarray:
     """Each linear axis's reversals split between the fitted and the held-out stretches,
     about one in ``every`` held out, at least one on each side.  An axis that reverses
-    a few times only, each time at the same place of a sector (SDIT_B's X: three
-    reversals, every sixth sector, at sub-segment 3), had them all held out, and an
-    effect that acts only there (a 10 um reversal spike) was invisible to the fit.
+    a few times only, each time at the same place of a sector (SDIT_B's X reverses
+    three times, every sixth sector, at sub-segment 3), can have them all held out, and
+    an effect that acts only there (a reversal spike) is then invisible to the fit
+    (hard case: blind-bad-SDIT_B-s1-22).
     The rarest axis first; a stretch balanced for one axis is not moved for another."""
     held = held.copy()
     units = stretch_numbers(ctx)
@@ -98,9 +99,10 @@ def support(C: np.ndarray) -> float:
     """Share of samples an effect acts on (any column above 10 % of its peak, where
     the effect is more than its own tail): a local effect (stick-slip near reversals, a
     mode rung by the starts and stops) must explain its own samples, not the whole
-    trace, to pass the noise threshold.  (At 1 % a mode's deflection with the slow
-    accelerations along the curves took in 4 % of the samples against 0.2 % above
-    10 %, and a 0.85 um per m/s^2 mode, 0.2 um at its peak, was refused.)"""
+    trace, to pass the noise threshold.  Counted at 1 % of its peak, a mode's deflection
+    with the slow accelerations along the curves takes in many times the samples it
+    acts on, and a mode whose deflection is a fraction of a micron is refused
+    (hard case: blind-typical-SDIT_C-s1-10)."""
     if C.size == 0:
         return 1.0
     peak = np.abs(C).max(axis=0)

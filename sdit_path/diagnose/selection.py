@@ -194,14 +194,14 @@ class Selection:
 
     def _joint_mounting(self, trials, A_tr, A_ho, r_ho, rss0, n_eff, companions: int = 3):
         """When no single effect passes a forward step and no part of the mounting is in
-        yet, its parts tried at once (a first geometry estimate that moved part of the
-        centring into a constant - the two are not separable from geometry - left a gap
-        neither part could take alone: each made the held-out stretches worse, and the
-        servo mismatch behind them was never reached); if they fail, with each of the
-        ``companions`` best other candidates (a 1.3 ms servo mismatch at F2000 with a
-        10 um centring: 12.4 um of gap that the set-up and the mismatch take to 1.5 um
-        together, while each alone left too much for the residual's correlation to let
-        either in, and nothing was found).  ``([(effect, nl, labels, C_tr, C_ho, dbic)
+        yet, its parts tried at once: a first geometry estimate that moves part of the
+        centring into a constant (the two are not separable from geometry) leaves a gap
+        neither part can take alone, each makes the held-out stretches worse, and the
+        effect behind them is never reached (hard case: analyse-s2-1).  If they fail,
+        with each of the ``companions`` best other candidates: a servo mismatch beside a
+        centring of microns leaves a gap that the two take together, while each alone
+        leaves too much for the residual's correlation to let either in, and nothing is
+        found (hard case: blind-bad-SDIT_B-s2-3).  ``([(effect, nl, labels, C_tr, C_ho, dbic)
         ...], new_tr, new_ho)`` when the group passes the same tests a single effect
         must, else None.
 
@@ -311,9 +311,10 @@ class Selection:
                     dbic = (n_eff * math.log(rss_full / max(rss, 1e-30))
                             + (cols_tr[i].shape[1] - C_tr.shape[1]) * math.log(n_eff))
                     # fewer columns that lose less than a finding must bring (a bar
-                    # length where a scale error of three columns held 0.006 um more
-                    # of 0.25 um noise, on 300,000 samples): the simpler one, whatever
-                    # such a sliver does to the information criterion
+                    # length where a scale error of three columns holds a sliver more,
+                    # far below the noise, which on a long recording the criterion
+                    # still counts; hard case: blind-bad-SDIT_C-s1-26): the simpler one,
+                    # whatever such a sliver does to the information criterion
                     # (and, the other way, more columns must bring that much)
                     extra = C_tr.shape[1] - cols_tr[i].shape[1]
                     C_ho = eff.columns(ctx, self.S_ho, nl)[0] if extra > 0 else None
@@ -368,9 +369,9 @@ class Selection:
         """The forward steps searched each finding's nonlinear parameters on what the
         findings before it left: with all the others in, each is searched again and
         its new parameters kept when the fit improves on the fitted and the held-out
-        samples.  (A play operator's width was found before the bar length was in:
-        8.5 um where the play fitted 9.6, and the ramp it missed after every reversal
-        came back as a reversal spike.)  True when something moved."""
+        samples.  A play operator's width searched before the bar length is in comes out
+        short, and the ramp it misses after every reversal comes back as a reversal spike
+        (hard case: test-play-sized-with-the-others).  True when something moved."""
         ctx, cols_tr, cols_ho, y_tr, y_ho = self.ctx, self.cols_tr, self.cols_ho, self.y_tr, self.y_ho
         moved = False
         for _ in range(2):
@@ -416,8 +417,9 @@ class Selection:
         differences, which shape its own second order; a play's width and slack, which
         shape its columns) read back from the fit with every finding in, until they hold
         to 1 %: a search reads them on what the findings before it leave, without the
-        others beside (1.86 ms where the fit gave 1.96, and a mode's deflection took up
-        the 0.03 um left at the accelerations).  True when something moved."""
+        others beside, and another finding (a mode's deflection) takes up what the
+        difference leaves at the accelerations (hard case: blind-bad-SDIT_B-s1-37).  True
+        when something moved."""
         ctx, cols_tr, cols_ho = self.ctx, self.cols_tr, self.cols_ho
         moved = False
         beta = None  # the joint fit, made again only after a finding's columns changed
@@ -434,9 +436,10 @@ class Selection:
                         for k in nl if isinstance(nl[k], float)):
                     continue
                 # taken whatever the fit says: a column shaped with one value and
-                # scaled to another is no machine's (a slack ramp of 1.0 um holding 4.6
-                # um: the axis would catch up faster than the command moved); the timing
-                # polished with the model then moves to where the shape is right
+                # scaled to another is no machine's (a slack ramp shaped for one size and
+                # scaled to several times it has the axis catch up faster than the command
+                # moves; hard case: blind-bad-SDIT5_C-s1-38); the timing polished with
+                # the model then moves to where the shape is right
                 C_tr, labels_new = eff.columns(ctx, self.S_tr, nl)
                 C_ho = eff.columns(ctx, self.S_ho, nl)[0]
                 cols_tr[i], cols_ho[i] = C_tr, C_ho

@@ -132,8 +132,8 @@ def settle_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np
     seed = first_al
     if shifted is not None:
         # a shape that held the timing in the wrong valley: the timing polished from the
-        # new one, and from there after the profile too (from the first timing it went
-        # back to a valley 6 ms from it)
+        # new one, and from there after the profile too (from the first timing it goes
+        # back to the neighbouring valley; hard case: blind-bad-SDIT_C-s2-39)
         X = model_columns(ctx, lib, expected, findings)
         D = shape_columns(ctx, lib, findings)
         al, jump = realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:], D]),
@@ -157,9 +157,9 @@ def settle_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np
         # samples left out carry (the difference's variance is that of the reading
         # without them less that of the reading with them); where they differ by more
         # than twice that, the excess is part of the timing's uncertainty.  The estimate
-        # from every sample is kept (without them a slow program lost most of its
-        # timing: SDIT_C's stick-slip 6 went from 1.2 ms off to 10.8, within what the
-        # information lost explains)
+        # from every sample is kept (on a slow program the crawls carry most of the
+        # timing: without them the start moves by about what the information lost
+        # explains; hard case: blind-bad-SDIT_C-s1-6)
         sure, _ = realign(ctx, expected, t_m, y_sure,
                            np.column_stack([*pose, X[:, 2:], D]), first_al)
         log.debug("timing without the unsure samples: offset %.4f +- %.2f ms vs %.4f s, "
@@ -188,11 +188,13 @@ def settle_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np
         return al, jump, names
     # a finding one feed cannot tell from its partner (servo lag / contour smoothing) was
     # chosen at the first timing, which the one it is not may have bent (a lag read as a
-    # smoothing leaves the start 17 ms late): the timing is searched with the partner in
-    # its place too, and the better fit's timing kept; both then compete again
+    # smoothing leaves the start late by a good part of the lag; hard case:
+    # blind-bad-SDIT_C-s1-2): the timing is searched with the partner in its place too,
+    # and the better fit's timing kept; both then compete again
     for f in findings:
         # (a pulse and a stick-slip leave the start alike, and the other competing in
-        # the pass after this one moved a pulse's start 5 ms: only the timing pairs)
+        # the pass after this one moves a pulse's start by milliseconds: only the timing
+        # pairs; hard case: blind-bad-SDIT_B-s1-5)
         partner = next((next(iter(pair - {f.effect})) for pair in TIMING_ALIASED
                         if f.effect in pair), None)
         if partner is None or partner in names:
@@ -218,8 +220,9 @@ def settle_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np
             al, jump = other, jump_o
         # the pair one feed cannot tell apart puts the start in different places (a lag
         # carries its delay into the offset, a zero-phase smoothing does not: a smoothing
-        # read as a lag left the start 11.8 ms early against a stated 1.1 ms): where the
-        # other fits about as well, the timing is known no better than the two differ
+        # read as a lag leaves the start milliseconds early, far beyond what the lag's
+        # timing states; hard case: blind-bad-SDIT_B-s1-46): where the other fits about
+        # as well, the timing is known no better than the two differ
         spread = alike_spread(worse, better, min(int(np.isfinite(y).sum()), REFINE_SAMPLES))
         if spread is not None:
             al = widened(al, spread,
@@ -233,8 +236,9 @@ def settle_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np
 #: a fit whose residual RMS is within this factor of the recording's own noise explains
 #: it: its timing is not searched for globally again (a missing effect of 0.57 times the
 #: noise, RMS, already exceeds it) - if the timing is sure, within these uncertainties
-#: (a tenth of the documented clock range; a drift can hold a clock error: a trace fitted
-#: to its noise at 282 ppm from the truth stated +- 306 ppm)
+#: (a tenth of the documented clock range; a drift can hold a clock error: a trace is
+#: fitted to its noise hundreds of ppm from the truth, and stated about as uncertain;
+#: hard case: blind-bad-SDIT_C-s1-28)
 EXPLAINED = 1.15
 
 
@@ -258,8 +262,8 @@ def realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     The global search is skipped when the model polished from ``first`` already
     explains the recording down to its own noise (a residual within ``EXPLAINED`` of
     the noise read from sample-to-sample differences) with a sure timing: no other
-    timing can then fit better by more than the noise, and the search cost a tenth of
-    the diagnosis."""
+    timing can then fit better by more than the noise, and the search costs about a
+    tenth of the diagnosis."""
     X = generic_columns(ctx, expected, extra)
     seed = ((first.offset_s, first.clock_ppm),)
     plain = align(ctx, expected, t_m, y, extra=extra, seeds=seed, model=X, search=False)
@@ -273,10 +277,9 @@ def realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
         plain = align(ctx, expected, t_m, y, extra=extra, seeds=seed, model=X, noise_um=noise)
     else:
         # explained to the noise, but reversal-locked shapes leave minima a few ms apart
-        # and the polish stops in the nearest: a 9.2 um play on the rotary-table
-        # program stayed 6.1 ms late and 16.5 ppm slow, stated +- 0.74 ms, where the
-        # truth's neighbourhood fit better by 2500 in chi-square; the neighbourhood is
-        # scanned, and a better valley taken
+        # and the polish stops in the nearest, milliseconds off and sure of it, while the
+        # truth's neighbourhood fits far better (hard case: blind-bad-SDIT5_C-s1-38): the
+        # neighbourhood is scanned, and a better valley taken
         near = local_scan(ctx, X, t_m, y, plain, CLOCK_LIMIT_PPM, samples=10_000)
         if near is not plain:
             log.debug("a better valley near the polished timing: offset %.4f -> %.4f s, "

@@ -46,11 +46,11 @@ def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: n
     the offset, and a finding read through a lag (a servo mismatch reads the axis rates
     as late as the reference axis lags; an equal lag's shrink is read as late as the
     lag) then pulls the start to meet its own timing - microns of it against the
-    tenths the geometry reads the start from (a mismatch moved it 12-13 ms, a lag found
-    at the grid's end 25 ms).  Each such parameter is profiled with the timing: for
-    every other value of the effect's grid (then around the best one) the timing is
-    polished with every column, the lowest residual wins and the finding's parameter is
-    set to it.
+    tenths the geometry reads the start from - by ten milliseconds and more (hard cases:
+    blind-bad-SDIT_C-s1-3, a mismatch; blind-bad-SDIT_B-s1-2, a lag).  Each such
+    parameter is profiled with the timing: for every other value of the effect's grid
+    (then around the best one) the timing is polished with every column, the lowest
+    residual wins and the finding's parameter is set to it.
 
     The profile also says how far the timing is known once the parameter is free: a
     value whose fit is worse by ``dchi2`` (in units of the residual's variance over the
@@ -90,8 +90,9 @@ def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: n
             trial(c)
         # then to the vertex of the parabola through the best value and its neighbours
         # (twice): a servo mismatch's columns move with the common lag by the lag
-        # difference times the acceleration, and a common lag 0.7 ms off the fine
-        # grid's step left that for a mode's deflection to take up
+        # difference times the acceleration, and a common lag left on the fine grid's
+        # step leaves that for a mode's deflection to take up
+        # (hard case: blind-bad-SDIT_B-s1-37)
         for _ in range(2):
             vertex = _parabola_vertex({c: a.rms_um ** 2 for c, a in fits.items()})
             if vertex is None:
@@ -149,9 +150,9 @@ def shape_scan(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.nd
     Its shape and the start trade with each other (a later rise with an earlier start,
     a later onset speed with a later start), so that the timing, polished with the
     shape found at it, and the shape, searched again at that timing, stop in the
-    nearest valley: a 7.4 um pulse that rose over 4 ms was read rising over 10 ms (the
-    end of its grid) with the start 12.4 ms early, stated +- 1.3 ms, while the pulses
-    searched 12 ms later fit better by 1500 in chi-square.
+    nearest valley: a pulse is read rising over the end of its grid, with the start
+    milliseconds early and stated far tighter, while the pulses searched at the true
+    start fit far better (hard case: blind-bad-SDIT_C-s2-39).
 
     The best shift's shape, if it beats the shape held by more than 9 in chi-square, is
     polished with every column from the start moved by the shift and taken (the

@@ -66,10 +66,10 @@ class Gram:
 #: equations *before* the set-up nuisances are eliminated count as zero.  Eliminating
 #: them (Schur complement) cancels terms of that size and leaves rounding noise of
 #: ~1e-12 of it in directions the geometry cannot see at all; measured against the
-#: largest eigenvalue *after* elimination instead (1.95e-2 against 1.9e6 on segment
-#: D3-2 alone), that noise passed as two more determined directions, and one segment
-#: showed rank 5 where the whole hemisphere shows 3.  A direction at 1e-9 of the scale
-#: (3e-5 of the best-seen sensitivity, after prior scaling) could not be determined anyway.
+#: largest eigenvalue *after* elimination instead, that noise passes as more determined
+#: directions, and one segment shows a higher rank than the whole hemisphere (hard case:
+#: test-part-rank).  A direction at 1e-9 of the scale (3e-5 of the best-seen
+#: sensitivity, after prior scaling) cannot be determined anyway.
 STRUCTURAL = 1e-9
 
 
@@ -457,8 +457,8 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
     Vd = V[:, determined]
     # the uncertainty that holds: the larger of what the noise alone gives and what the
     # blocks' spread gives (a model error correlated within a second, which the noise
-    # alone does not cover: a reversal spike left in one recording put combinations
-    # 4.7-6.3 noise-only standard uncertainties off)
+    # alone does not cover: a reversal spike left in one recording puts combinations
+    # several noise-only standard uncertainties off; hard case: analyse-s1-3)
     cov_d = np.diag(std[determined] ** 2)
     hac = block_covariance(grams, x_hat) if determined.any() else None
     if hac is not None:

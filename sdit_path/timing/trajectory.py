@@ -223,7 +223,8 @@ class Timer:
         The derivatives are taken on a grid of at most ``step_mm`` and at least
         ``per_knot`` points per knot interval: the fit puts its knots densest where the
         curve turns tightest, and a coarser grid would average the largest third
-        derivatives away (a crest with a 0.35 mm radius was under-read by half).  The
+        derivatives away (a crest of a fraction of a millimetre's radius is under-read by
+        half, and its jerk limit broken; hard case: test-axis-limits-seed2).  The
         feed caps the parameter's speed at ``feed / max ds/dsigma`` in each window,
         with the largest step of ``ds/dsigma`` between grid points added so that the
         ball keeps within the feed between them too.  ``feed``: the run's own (mm/s;

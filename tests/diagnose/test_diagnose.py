@@ -110,7 +110,7 @@ def test_mimics_are_reported(setup, tmp_path):
     assert other in [m["effect"] for m in f.mimics]
     assert f.confidence != "high"
     # one ambiguous finding, never the pair as two
-    assert f.ambiguous_with == [other] and f.separate_by
+    assert f.ambiguous_with == (other,) and f.separate_by
     assert other not in [g.effect for g in d.findings]
 
 

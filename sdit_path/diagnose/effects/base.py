@@ -54,7 +54,8 @@ def fitted_beside(basis: np.ndarray | None):
     columns ``basis`` spans (``r`` orthogonal to them): the reduction a joint fit would
     give.  A raw projection lets the earlier fit keep what the new columns share with it
     (a set-up fitted alone takes part of a smoothing's shrink while moving, and the
-    smoothing's search then preferred its shortest filter)."""
+    smoothing's search then prefers its shortest filter; hard case:
+    blind-bad-SDIT_B-s1-46)."""
     token = _BESIDE.set(basis)
     try:
         yield
@@ -271,7 +272,8 @@ class Effect:
         if self.timing_parameter and self.timing_end_implausible:
             # a lag at the far end of its search: the data want a longer one, which is not
             # this effect (a backlash on the equator layer, its play taken up over a slow
-            # reversal, read as a mismatch with a 100 ms common lag beside a stick-slip)
+            # reversal, reads as a mismatch with its common lag at the end of its grid
+            # beside a stick-slip; hard case: analyse-s2-2)
             key, grid = self.timing_parameter
             value = params.get(key)
             if isinstance(value, float) and grid[-1] > 0 and value >= grid[-1] * (1 - 1e-9):

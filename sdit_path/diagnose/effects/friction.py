@@ -16,14 +16,14 @@ class ReversalSpike(Effect):
     a parameter too: at the sign change, or once the axis has reached a breakaway
     speed (``onset_mm_s``); on a slow reversal inside a curve (2 mm/s^2 through zero)
     0.05 mm/s comes 25 ms after the sign change, and a pulse put at the sign change
-    then bent the timing by 40 ms."""
+    bends the timing by about as much."""
 
     name, title = "reversal_spike", "decaying pulse after an axis reversal (friction)"
     commonness, time_locked = 5, True
     #: both act for tens of ms after an axis reverses; at one feed a small stick-slip and
-    #: a pulse are a few hundredths of a micrometre apart (a 1.1 um stick-slip on Z at
-    #: F2000, named a pulse by the simpler-finding rule).  They leave the start alike:
-    #: no timing alias.
+    #: a pulse are a few hundredths of a micrometre apart, and the simpler-finding rule
+    #: names the stick-slip a pulse (hard case: blind-bad-SDIT_B-s2-40).  They leave the
+    #: start alike: no timing alias.
     aliases = MappingProxyType({
         "stick_slip":
             "run the layer again at a second feed (a friction pulse grows with the feed; a "
@@ -35,9 +35,10 @@ class ReversalSpike(Effect):
     # through the velocity loop), it does not jump
     limits = MappingProxyType({"height_*": 50.0, "tau_ms": 100.0})
     grid_ms = (5.0, 8.0, 12.0, 18.0, 25.0, 35.0, 50.0, 70.0, 100.0)
-    #: the rise (ms) is searched too: a velocity loop answers in 1-10 ms, and a rise
-    #: held at 3 ms on a pulse that rose over 3.9 ms bent the timing 2.8 ms while the
-    #: fit stayed at the noise (the pulses were the only timing in that trace)
+    #: the rise (ms) is searched too: a velocity loop answers in 1-10 ms, and a rise held
+    #: fixed on a pulse that rises slower bends the timing by milliseconds while the fit
+    #: stays at the noise, where the pulses are all the timing a trace holds
+    #: (hard case: blind-bad-SDIT_B-s1-39)
     rise_grid_ms = (1.0, 1.5, 2.0, 3.0, 4.0, 5.5, 7.5, 10.0)
     rise_ms = 3.0
     #: speeds (mm/s) at which the pulse may start; the first is the sign change itself
@@ -143,9 +144,10 @@ class ReversalSpike(Effect):
         tau = params.get("tau_ms")
         if why is None and isinstance(tau, float):
             # the data want a decay beyond the search, and friction decays over 10-100 ms
-            # (the brief): shorter, it was a stick-slip's edge read as a companion pulse;
-            # longer (as a lag at the end of its grid), a slow ramp beside a play taken
-            # up over a 5-axis program's slow reversals
+            # (the brief): shorter, it is a stick-slip's edge read as a companion pulse
+            # (hard case: blind-bad-SDIT_C-s1-6); longer (as a lag at the end of its
+            # grid), a slow ramp beside a play taken up over a 5-axis program's slow
+            # reversals (hard case: blind-bad-SDIT5_C-s1-38)
             lo, hi = self.grid_ms[0], self.grid_ms[-1]
             if tau <= lo * (1 + 1e-9):
                 return f"tau_ms = {tau:.4g} at the short end of its search ({lo:g})"
@@ -200,9 +202,9 @@ class StickSlip(Effect):
     def unsure_in_time(self, ctx, params):
         """The crawls of the axes that stick.  Within them the saw-tooth's phase is the
         friction's, not the program's (sampled, a tooth of 3.5 um at 3 mm/s is shorter
-        than a sample), and what the columns leave of it is not noise: fitted with the
-        crawls, the start came 3.3 ms late against a stated 0.8 ms (blind case SDIT_B 40),
-        without them 0.7 ms."""
+        than a sample), and what the columns leave of it is not noise: read with the
+        crawls, the start moves by milliseconds, several times what the timing states
+        (hard case: blind-bad-SDIT_B-s1-40)."""
         size = {j: abs(params.get(f"mean_lag_{ctx.axis_names[j]}_um", 0.0))
                 + abs(params.get(f"amplitude_{ctx.axis_names[j]}_um", 0.0))
                 for j in linear_axes(ctx)}

@@ -48,9 +48,10 @@ def dynamic_columns(ctx: Context) -> np.ndarray:
     cols = [ServoMismatch().columns(ctx, allg, {})[0]]
     cols.append(ctx.u_bed * (ctx.t_s / 3600.0)[:, None])
     # each axis deflects with its own acceleration (its structure's compliance, a mode
-    # of tens of Hz quasi-static below it): microns at each start and stop, which left
-    # 17-20 ms and 100-120 ppm in the timing.  Not generic: on a trace without it the
-    # same columns take the starts and stops the timing is read from
+    # of tens of Hz quasi-static below it): microns at each start and stop, which pull
+    # the start by tens of ms and the clock by a hundred ppm unless fitted.  Not
+    # generic: on a trace without it the same columns take the starts and stops the
+    # timing is read from
     cols.append(axis_acceleration_readings(ctx))
     widths = {f"width_{ctx.axis_names[j]}_um": 6.5 for j in linear_axes(ctx)
               if len(ctx.reversal_times[j])}

@@ -62,8 +62,7 @@ class Squareness(ModelColumns):
     #: Over the whole sphere a scale error of an axis reads the square of the bar's
     #: direction cosine along it and a squareness the product of two axes' cosines; a
     #: program whose poses couple the two (a 5-axis layer turning the table under a bar
-    #: of few directions) cannot tell them apart (hard case: typical SDIT5_C blind case 8,
-    #: a 24 urad XZ squareness read as a scale of X and Z with the squareness 2 % behind).
+    #: of few directions) cannot tell them apart (hard case: blind-typical-SDIT5_C-s1-8).
     #: Never merged when both are selected: a machine has both.
     program_aliases = MappingProxyType({
         "scale_mismatch":

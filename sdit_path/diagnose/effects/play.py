@@ -103,8 +103,9 @@ class Backlash(Effect):
         # before the program left it anywhere across its width.  :meth:`_col` takes it
         # up in the first direction; the slack left at the start (how far the command
         # moves before the axis follows) is a column of its own, read from the rest
-        # before the first move.  (An independent generator starting in the middle of
-        # the play left 3.9 um over the first 2 s, and a reversal spike was invented.)
+        # before the first move.  (Read as taken up, a play that stood in its middle
+        # leaves half its width unexplained over that rest, and a reversal spike is
+        # invented for it; hard case: blind-bad-SDIT5_C-s2-4.)
         for j in axes:
             key = f"slack_{ctx.axis_names[j]}_um"
             if key in nl:
@@ -117,8 +118,10 @@ class Backlash(Effect):
 
     def from_fit(self, nl, coef, labels):
         # the plays and slacks the columns are shaped with, as fitted with the others in
-        # (a slack searched at 1.0 um fitted 4.6, and the start column's shape held the
-        # timing 6 ms late); a play the fit puts outside the search's range keeps its own
+        # (searched alone, a slack comes out a fraction of what the fit makes it, and
+        # the start column's shape then holds the timing milliseconds late; hard case:
+        # blind-bad-SDIT5_C-s1-38); a play the fit puts outside the search's range
+        # keeps its own
         fitted = {lab: float(c) for lab, c in zip(labels, coef)}
         out = dict(nl)
         def axis(key, prefix):  # width_<axis>_um -> <axis>

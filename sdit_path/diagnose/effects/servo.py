@@ -113,8 +113,8 @@ class ServoMismatch(Effect):
         is off by L(tau + d) q - L(tau) q = -d * s L(tau) L(tau + d) q: the rate through
         two lags, about 2 tau late.  The alignment has put the reference lag tau into the
         offset, so in program time the rate is read about tau late; read without that
-        lag, the mismatch (microns where the geometry reads tenths) drags the start
-        12-13 ms late to meet it."""
+        lag, the mismatch (microns where the geometry reads tenths) drags the start late
+        to meet it (hard case: blind-bad-SDIT_C-s1-3)."""
         return memo(self._cache, ctx, common_ms, lambda: self._lagged_rates(ctx, common_ms),
                      digits=6)
 
@@ -155,9 +155,10 @@ class ServoMismatch(Effect):
         # search has found a lag difference h, the column is the exact error of that
         # difference divided by it (a secant: fitted h gives the error itself), because
         # its second order (h^2 times the axis' acceleration, through the common lag as
-        # well) reaches microns at the accelerations: a 1 ms mismatch of a rotary axis
-        # left it for a linear axis to take up as a mode's deflection, and a 2 ms one
-        # at F2000 without its common lag pulled the start 4 ms late
+        # well) reaches microns at the accelerations: left out, a linear axis takes it
+        # up as a mode's deflection (hard case: test-five-axis-rotary-mismatch), and
+        # built without the common lag it pulls the start and brings a mode beside it
+        # (hard case: blind-bad-SDIT_B-s1-37)
         hints = tuple(round(float(nl.get(f"{SECOND_ORDER}{ctx.axis_names[j]}", 0.0)), 6)
                       for j in others)
         exact = self._secants(ctx, common, hints) if any(hints) else None

@@ -28,7 +28,7 @@ class BarLength(Effect):
     commonness, geometric, mounting = 1, True, True
     #: at the first timing a position-locked effect (a scale error at the clock's edge)
     #: may have stood in for it, and the first pass named only what helped there
-    #: (hard case: SDIT_B blind case 43, a cyclic error that left a spurious scale error)
+    #: (hard case: blind-bad-SDIT_B-s1-43)
     judged_again = True
     limits = MappingProxyType({"dL_um": 1000.0})
 

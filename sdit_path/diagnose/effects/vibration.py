@@ -62,7 +62,7 @@ class Vibration(Effect):
         dt = float(ctx.t_s[1] - ctx.t_s[0])
         axes = linear_axes(ctx) if axes is None else list(axes)
         # every axis filtered at once and read at the samples with one interpolation
-        # (the grid is uniform): np.interp per axis took as long as the filter
+        # (the grid is uniform): np.interp per axis takes as long as the filter
         x = _mode_response(self._accs(ctx, axes), dt, f_hz, zeta)
         return ctx.gain[idx][:, axes] * sample_at(ctx.t_s, x, tau)
 
@@ -76,7 +76,8 @@ class Vibration(Effect):
         """Indices into ``s`` where a mode can ring (from where any axis accelerates
         until a quarter second after), at most ``quota`` (a seeded choice): on a program
         that accelerates only where it starts and stops, a random choice over the whole
-        trace kept a handful of samples of each ring and the search lost a 2 um mode."""
+        trace keeps a handful of samples of each ring, and the search loses a mode of
+        microns."""
         if "ringing" not in ctx.cache:  # the same for every search on this program
             dt = float(ctx.t_s[1] - ctx.t_s[0])
             acc = np.abs(np.column_stack([self._acc(ctx, j) for j in linear_axes(ctx)]))
@@ -150,14 +151,14 @@ class Vibration(Effect):
         B = (P.T @ rp).reshape(len(grams), -1)
         pairs = [(f, z) for f in freqs for z in self.dampings]
         # a structural mode belongs to one axis: the axes start and stop together on the
-        # sphere, so a mode fitted to every axis at once spread one axis' compliance over
-        # all three (8, 5 and 5 um per m/s^2 for a mode of X of 3.7) and was refused
+        # sphere, so a mode fitted to every axis at once spreads one axis' compliance
+        # over all three, each larger than the mode's, and is refused as implausible
         ring = np.array([judge(G, b, f) for (f, _), G, b in zip(pairs, grams, B)])
         # The axis is the one whose mode explains most: its ringing and its deflection
         # that follows the acceleration (the base's column).  On a program whose
         # accelerations ramp slower than the mode rings, the deflection is nearly all of
-        # it (a 0.85 um per m/s^2 mode at 79 Hz: 366 in chi-square, the ringing noise),
-        # and the axis chosen by its ringing alone was one without a mode.
+        # it and its ringing is at the noise, and the axis chosen by its ringing alone
+        # is one without a mode (hard case: blind-typical-SDIT_C-s1-10).
         static = np.array([projection_gain(base[:, 2 * n][:, None], rs) for n in range(len(axes))])
         k = int(np.argmax(static + ring.max(axis=0)))
         if ring[:, k].max() < RINGING_READ * float(rp @ rp) / len(rp):
