@@ -447,18 +447,16 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, jobs, quie
 def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead_s, clock_ppm,
                     out_file, truth_file, quiet) -> None:
     """Make a realistic measured trace of PROGRAM with hidden effects."""
-    import dataclasses
     import json
     from pathlib import Path
 
     from .reading.context import build_context
     from .errormodel.errorset import load_error_set
-    from .errors import ConfigError, OutputError
+    from .errors import OutputError
     from .output import write_file
     from .plan.files import load_plan
     from .reading.recording import measured_csv
-    from .sim.perturb import (Hidden, Recording, draw_case, draw_effect, draw_recording,
-                              parse_effect, perturb, truth_json)
+    from .sim.perturb import hidden_and_recording, perturb, truth_json
 
     try:
         for name, v, lo, hi in (("--noise-um", noise_um, 0, 100), ("--lead-s", lead_s, 0, 600),
@@ -469,23 +467,8 @@ def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead
             plan = load_plan(plan_dir)
             model = load_error_set(model_file) if model_file else None
             ctx = build_context(plan, program)
-            if seed is not None and not effects:
-                _, hidden = draw_case(seed, ctx)
-            else:
-                hidden = [parse_effect(e) for e in effects]
-            # parameters not given are drawn (seeded), the given ones kept
-            rng = np.random.default_rng([seed or 0, 5])
-            drawn = [draw_effect(h.name, rng, ctx).params for h in hidden]
-            for h, d in zip(hidden, drawn):
-                unknown = sorted(set(h.params) - set(d))
-                if unknown:
-                    raise ConfigError("--effect", f"{h.name}: unknown parameter(s) {', '.join(unknown)}; "
-                                                  f"expected some of {', '.join(d)}")
-            hidden = [Hidden(h.name, {**d, **h.params}) for h, d in zip(hidden, drawn)]
-            rec = draw_recording(seed) if seed is not None else Recording()
-            changes = {k: v for k, v in (("noise_um", noise_um), ("lead_s", lead_s),
-                                         ("clock_ppm", clock_ppm)) if v is not None}
-            rec = dataclasses.replace(rec, **changes)
+            hidden, rec = hidden_and_recording(ctx, effects, seed, noise_um=noise_um,
+                                               lead_s=lead_s, clock_ppm=clock_ppm)
             for target in (out_file, truth_file):
                 if target and Path(target).is_dir():
                     raise OutputError(f"{target}: is a directory")
@@ -519,16 +502,13 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
     import json
     from pathlib import Path
 
-    from .diagnose.align import AlignmentError
-    from .reading.context import build_context
-    from .diagnose import diagnose
-    from .diagnose.recording import align_recording
-    from .reports.diagnosis import pictures, summary_text
+    from .analyse.diagnosis import diagnose_recording
     from .errormodel.errorset import load_error_set
     from .errors import ConfigError
     from .output import write_file
     from .plan.files import load_plan
     from .reading.recording import read_trace
+    from .reports.diagnosis import pictures, summary_text
 
     try:
         plan = load_plan(plan_dir)
@@ -538,16 +518,7 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
         model = load_error_set(model_file) if model_file else None
         trace = read_trace(measured)
         with _Steps(quiet, None, "diagnosing") as step:
-            ctx = build_context(plan, program)
-            # matched and aligned as every command that reads a recording does it
-            step("matching the recording to its program")
-            rec = align_recording(plan, program, trace, str(measured), ctx)
-            try:
-                # with a geometric model the search is made again with what it predicts
-                result = diagnose(plan, program, trace, model, progress=step, ctx=ctx,
-                                  alignment=rec.alignment if model is None else None)
-            except AlignmentError as exc:
-                raise AlignmentError(f"{measured}: {exc}") from None
+            result, ctx = diagnose_recording(plan, program, trace, str(measured), model, step)
         report = result.to_json()
         if json_out:
             write_file(json_out, json.dumps(report, indent=2) + "\n")

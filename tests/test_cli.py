@@ -29,6 +29,7 @@ def planned(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_plan_writes_layer_programs_and_manifest(planned):
     files = set(tree(planned))
     for layer in "ABCDE":
@@ -52,12 +53,14 @@ def test_plan_writes_layer_programs_and_manifest(planned):
     assert m["summary"]["sinumerik840d"]["max_radial_deviation_um"] <= 0.01
 
 
+@pytest.mark.slow
 def test_same_input_gives_byte_identical_output(planned, tmp_path):
     again = tmp_path / "again"
     assert run("plan", "--out", str(again), "-q").returncode == 0
     assert tree(again) == tree(planned)
 
 
+@pytest.mark.slow
 def test_refuses_non_empty_dir_and_force_never_deletes_foreign_files(tmp_path, planned):
     out = tmp_path / "out"
     (out / "sub").mkdir(parents=True)
@@ -90,6 +93,7 @@ def test_refuses_non_empty_dir_and_force_never_deletes_foreign_files(tmp_path, p
     assert (out / "plan.json").is_file()
 
 
+@pytest.mark.slow
 def test_force_never_replaces_the_working_folder_or_the_configs(tmp_path):
     cfg = tmp_path / "cfgdir" / "m.toml"
     cfg.parent.mkdir()
@@ -101,6 +105,7 @@ def test_force_never_replaces_the_working_folder_or_the_configs(tmp_path):
     assert cfg.is_file()
 
 
+@pytest.mark.slow
 def test_outputs_respect_the_umask(tmp_path):
     import os
     import stat
@@ -120,6 +125,7 @@ def test_outputs_respect_the_umask(tmp_path):
         assert mode == (0o755 if p.is_dir() else 0o644), (p, oct(mode))
 
 
+@pytest.mark.slow
 def test_no_terminal_prints_a_line_per_stage(tmp_path):
     r = run("plan", "--out", str(tmp_path / "p"))
     assert r.returncode == 0, r.stderr
@@ -168,6 +174,7 @@ def test_unparseable_config_names_file_and_line(tmp_path):
     assert r.returncode == 2 and f"{cfg}:3" in r.stderr and "cannot parse TOML" in r.stderr
 
 
+@pytest.mark.slow
 def test_user_text_cannot_inject_blocks(tmp_path):
     text = sample_path("vmc_3axis.toml").read_text()
     text = edit(text, "program_prefix", '"X\\nG0 Z-500\\r;"')

@@ -101,6 +101,7 @@ def test_a_spindle_nose_a_kilometre_long_is_refused():
 
 # --------------------------------------------------------------------------- bundled names
 
+@pytest.mark.slow
 def test_a_path_is_never_taken_for_a_bundled_sample(tmp_path):
     r = run("plan", "./vmc_3axis.toml", "--out", "o", cwd=tmp_path)
     assert r.returncode == 2 and "no such file" in one_error_line(r)
@@ -123,6 +124,8 @@ def linuxcnc_acts_on(comment: str) -> bool:
     return comment.lstrip(" \t").lower().startswith(ACTING)
 
 
+@pytest.mark.slow
+@pytest.mark.oracle
 def test_user_text_never_reaches_a_controller_as_something_it_acts_on(tmp_path):
     text = SMALL.read_text(encoding="utf-8")
     text = "# Fräsmaschine, Prüfstand 3\n" + text
@@ -315,6 +318,7 @@ PLAN_EDITS = {
 
 
 @pytest.mark.parametrize("name", sorted(PLAN_EDITS))
+@pytest.mark.slow
 def test_edited_plan_directories_are_refused_by_name(small_plan, tmp_path, name):
     edit_fn, expected = PLAN_EDITS[name]
     d = tmp_path / "plan"
@@ -340,6 +344,7 @@ def test_edited_plan_directories_are_refused_by_name(small_plan, tmp_path, name)
     assert not caught, [str(w.message) for w in caught]
 
 
+@pytest.mark.slow
 def test_commands_reading_an_edited_plan_end_with_one_line(small_plan, tmp_path):
     d = tmp_path / "plan"
     shutil.copytree(small_plan, d)
@@ -355,6 +360,7 @@ def test_commands_reading_an_edited_plan_end_with_one_line(small_plan, tmp_path)
         assert "tested_travel" in one_error_line(r)
 
 
+@pytest.mark.slow
 def test_identify_refuses_a_recording_of_part_of_the_program(small_plan, tmp_path):
     full = tmp_path / "full.csv"
     r = run("simulate", "--plan", str(small_plan), "--program", "GOLD_A", "--errors",
@@ -372,6 +378,7 @@ def test_identify_refuses_a_recording_of_part_of_the_program(small_plan, tmp_pat
 
 # --------------------------------------------------------------------------- writes
 
+@pytest.mark.slow
 def test_kills_leave_the_old_or_the_new_output_whole(tmp_path):
     """SIGKILL `plan --force` at seeded moments: the output is always a whole plan (the
     old one or the new one, never a mixture or nothing), and the next run leaves no
@@ -435,6 +442,7 @@ def full_disk(tmp_path):
         subprocess.run(["umount", str(mnt)], capture_output=True)
 
 
+@pytest.mark.slow
 def test_a_full_disk_is_one_clear_line_from_every_writer(full_disk, small_plan, tmp_path):
     with pytest.raises(SditError, match="no space left on the device"):
         write_file(full_disk / "big.csv", "x" * 1_000_000)

@@ -40,6 +40,7 @@ def random_config(seed: int):
     return parse_config(text, f"seed{seed}.toml")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", SEEDS)
 def test_points_stay_on_the_sphere(seed):
     cfg = random_config(seed)

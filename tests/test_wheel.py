@@ -10,6 +10,8 @@ import sysconfig
 import zipfile
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -19,6 +21,7 @@ def sh(*cmd, cwd=None) -> subprocess.CompletedProcess:
     return r
 
 
+@pytest.mark.slow
 def test_installed_wheel_finds_posts_templates_and_samples(tmp_path):
     dist = tmp_path / "dist"
     sh(sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w", dist, ROOT)

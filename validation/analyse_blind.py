@@ -229,6 +229,32 @@ def other_plans(config: Path, work: Path) -> dict[str, Path]:
     return out
 
 
+def summary(results: list[dict]) -> None:
+    """The campaign's figures from its cases (a run's, or an earlier ``--json`` file's)."""
+    ok = [r for r in results if "error" not in r]
+    combos = sum(r["combinations"] for r in ok)
+    within = sum(r["within_3"] for r in ok)
+    recs = [x for r in ok for x in r["recordings"]]
+    eff = [x for r in ok for x in r["recordings"] if r["effect"]]
+    clean = [x for r in ok for x in r["recordings"] if not r["effect"]]
+    print(f"\ncases {len(ok)} of {len(results)} analysed; determined combinations within 3 std: "
+          f"{within}/{combos} ({within / max(combos, 1):.1%})")
+    print(f"effect named first: {sum(x['right'] for x in eff)}/{len(eff)} recordings (and "
+          f"{sum(x.get('in_ambiguous', False) for x in eff)} more named with it as one ambiguous "
+          f"finding); clean recordings with no effect named: "
+          f"{sum(x['right'] for x in clean)}/{len(clean)}")
+    seen = [x for x in eff if x.get("excited")]
+    print(f"  where the program excites the effect above the recording's noise (as the "
+          f"independent blind check counts): {sum(x['right'] for x in seen)}/{len(seen)} named "
+          f"first, {sum(x.get('in_ambiguous', False) for x in seen)} more as one ambiguous finding")
+    print(f"alignment: start within 50 ms {sum(x['offset_ok'] for x in recs)}/{len(recs)}, clock "
+          f"within max(5 ppm, 4 std) {sum(x['clock_ok'] for x in recs)}/{len(recs)}")
+    tried = [x for r in ok for x in r.get("refusals", [])]
+    if tried:
+        print(f"refused (other feed, other plan, named as another program): "
+              f"{sum(bool(x.get('refused')) for x in tried)}/{len(tried)}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--plan-config", default=str(HERE.parent / "tests/data/golden_small.toml"))
@@ -238,7 +264,12 @@ def main() -> None:
     ap.add_argument("--work")
     ap.add_argument("--no-refusals", action="store_true",
                     help="skip the recordings of other plans and wrongly named programs")
+    ap.add_argument("--rescore", type=Path, default=None,
+                    help="Print the figures of an earlier --json file.")
     a = ap.parse_args()
+    if a.rescore:
+        summary(json.loads(a.rescore.read_text()))
+        return
     work = Path(a.work or tempfile.mkdtemp(prefix="analyse-blind-"))
     plan_dir = work / "plan"
     if not plan_dir.is_dir():
@@ -265,28 +296,7 @@ def main() -> None:
         for x in res.get("refusals", []):
             if not x.get("refused"):
                 print(f"         NOT REFUSED: {x['what']}: {x.get('error') or x['line']}", flush=True)
-    ok = [r for r in results if "error" not in r]
-    combos = sum(r["combinations"] for r in ok)
-    within = sum(r["within_3"] for r in ok)
-    recs = [x for r in ok for x in r["recordings"]]
-    eff = [x for r in ok for x in r["recordings"] if r["effect"]]
-    clean = [x for r in ok for x in r["recordings"] if not r["effect"]]
-    print(f"\ncases {len(ok)} of {len(results)} analysed; determined combinations within 3 std: "
-          f"{within}/{combos} ({within / max(combos, 1):.1%})")
-    print(f"effect named first: {sum(x['right'] for x in eff)}/{len(eff)} recordings (and "
-          f"{sum(x.get('in_ambiguous', False) for x in eff)} more named with it as one ambiguous "
-          f"finding); clean recordings with no effect named: "
-          f"{sum(x['right'] for x in clean)}/{len(clean)}")
-    seen = [x for x in eff if x.get("excited")]
-    print(f"  where the program excites the effect above the recording's noise (as the "
-          f"independent blind check counts): {sum(x['right'] for x in seen)}/{len(seen)} named "
-          f"first, {sum(x.get('in_ambiguous', False) for x in seen)} more as one ambiguous finding")
-    print(f"alignment: start within 50 ms {sum(x['offset_ok'] for x in recs)}/{len(recs)}, clock "
-          f"within max(5 ppm, 4 std) {sum(x['clock_ok'] for x in recs)}/{len(recs)}")
-    tried = [x for r in ok for x in r.get("refusals", [])]
-    if tried:
-        print(f"refused (other feed, other plan, named as another program): "
-              f"{sum(bool(x.get('refused')) for x in tried)}/{len(tried)}")
+    summary(results)
     if a.json:
         Path(a.json).write_text(json.dumps(results, indent=1) + "\n")
 

@@ -146,37 +146,8 @@ def run_case(args):
     return out
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--cases", type=int, default=120)
-    ap.add_argument("--seed", type=int, default=1000)
-    ap.add_argument("--plan", type=Path, default=None)
-    ap.add_argument("--feed", type=float, default=1500.0)
-    ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
-    ap.add_argument("--json", type=Path, default=None)
-    args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        plan_dir = args.plan
-        if plan_dir is None:
-            make_plan(Path(tmp), args.feed)
-            plan_dir = Path(tmp) / "plan"
-        work = [(i, args.seed, str(plan_dir), tmp) for i in range(args.cases)]
-        t0 = time.perf_counter()
-        results = []
-        with ProcessPoolExecutor(args.jobs) as pool:
-            for r in pool.map(run_case, work):
-                results.append(r)
-                flag = ""
-                if "top1" in r:
-                    flag = "top1 ok" if r["top1"] else ("mimic" if r["top1_or_mimic"] else "TOP1 MISS")
-                if "false_finding" in r:
-                    flag = "FALSE FINDING" if r["false_finding"] else "clean ok"
-                if "honest" in r:
-                    flag = "honest" if r["honest"] else "NOT HONEST"
-                print(f"case {r['case']:3d} {r['program']} {r['kind']:8s} hidden {','.join(r['hidden']) or '-':45s} "
-                      f"found {','.join(r['found']) or '-':45s} {flag} ({r['seconds']:.1f} s)", flush=True)
-        wall = time.perf_counter() - t0
-
+def summary(results: list[dict], feed: float, wall: float | None = None) -> None:
+    """The campaign's figures from its cases (a run's, or an earlier ``--json`` file's)."""
     def frac(key, kinds=None):
         vals = [r[key] for r in results if key in r and (kinds is None or r["kind"] in kinds)]
         return (sum(vals) / len(vals) if vals else float("nan")), len(vals)
@@ -191,8 +162,9 @@ def main() -> None:
     shn = [r["heldout_shrink_above_noise"] for r in results if "heldout_shrink_above_noise" in r]
     ov = [r["overlap"] for r in results if "overlap" in r]
     print()
-    print(f"cases {len(results)} (plan F{args.feed:g}, model {MODEL}), wall {wall:.0f} s, "
-          f"diagnosis {np.mean([r['seconds'] for r in results]):.1f} s per case")
+    print(f"cases {len(results)} (plan F{feed:g}, model {MODEL}), "
+          + (f"wall {wall:.0f} s, " if wall is not None else "")
+          + f"diagnosis {np.mean([r['seconds'] for r in results]):.1f} s per case")
     print(f"top-1 effect:                 {top1:.3f} of {n1} (one effect {top1_one:.3f} of {n_one}, "
           f"several {top1_sev:.3f} of {n_sev})   target >= 0.90")
     print(f"top-1 or its R2>=0.95 mimic:  {top1m:.3f}")
@@ -222,6 +194,45 @@ def main() -> None:
     if misses:
         print("top-1 misses: " + "; ".join(f"case {r['case']} {','.join(r['hidden'])} -> "
                                            f"{','.join(r['found']) or '-'}" for r in misses))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--cases", type=int, default=120)
+    ap.add_argument("--seed", type=int, default=1000)
+    ap.add_argument("--plan", type=Path, default=None)
+    ap.add_argument("--feed", type=float, default=1500.0)
+    ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
+    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--rescore", type=Path, default=None,
+                    help="Print the figures of an earlier --json file (of a plan at --feed).")
+    args = ap.parse_args()
+    if args.rescore:
+        summary(json.loads(args.rescore.read_text()), args.feed)
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        plan_dir = args.plan
+        if plan_dir is None:
+            make_plan(Path(tmp), args.feed)
+            plan_dir = Path(tmp) / "plan"
+        work = [(i, args.seed, str(plan_dir), tmp) for i in range(args.cases)]
+        t0 = time.perf_counter()
+        results = []
+        with ProcessPoolExecutor(args.jobs) as pool:
+            for r in pool.map(run_case, work):
+                results.append(r)
+                flag = ""
+                if "top1" in r:
+                    flag = "top1 ok" if r["top1"] else ("mimic" if r["top1_or_mimic"] else "TOP1 MISS")
+                if "false_finding" in r:
+                    flag = "FALSE FINDING" if r["false_finding"] else "clean ok"
+                if "honest" in r:
+                    flag = "honest" if r["honest"] else "NOT HONEST"
+                print(f"case {r['case']:3d} {r['program']} {r['kind']:8s} hidden {','.join(r['hidden']) or '-':45s} "
+                      f"found {','.join(r['found']) or '-':45s} {flag} ({r['seconds']:.1f} s)", flush=True)
+        wall = time.perf_counter() - t0
+
+    summary(results, args.feed, wall)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1, default=float) + "\n")
 

@@ -9,6 +9,7 @@ the trace carries none of it.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -185,6 +186,32 @@ def _first_order(x: np.ndarray, tau_s: float, dt: float) -> np.ndarray:
     k = 2.0 * tau_s / dt
     y = lfilter([1.0, 1.0], [1.0 + k, 1.0 - k], x - x[0])
     return y + x[0]
+
+
+def hidden_and_recording(ctx: Context, effects: list[str], seed: int | None,
+                         noise_um: float | None = None, lead_s: float | None = None,
+                         clock_ppm: float | None = None) -> tuple[list[Hidden], Recording]:
+    """What ``perturb`` hides and how it records.  ``effects``: ``name:key=value,...``
+    each (the parameters not given drawn, seeded by ``seed`` or 0); none and a ``seed``:
+    a whole case drawn from it.  The recording is drawn from ``seed`` (or the defaults),
+    with the ``noise_um``, ``lead_s`` and ``clock_ppm`` given kept."""
+    if seed is not None and not effects:
+        _, hidden = draw_case(seed, ctx)
+    else:
+        hidden = [parse_effect(e) for e in effects]
+    # parameters not given are drawn (seeded), the given ones kept
+    rng = np.random.default_rng([seed or 0, 5])
+    drawn = [draw_effect(h.name, rng, ctx).params for h in hidden]
+    for h, d in zip(hidden, drawn):
+        unknown = sorted(set(h.params) - set(d))
+        if unknown:
+            raise ConfigError("--effect", f"{h.name}: unknown parameter(s) {', '.join(unknown)}; "
+                                          f"expected some of {', '.join(d)}")
+    hidden = [Hidden(h.name, {**d, **h.params}) for h, d in zip(hidden, drawn)]
+    rec = draw_recording(seed) if seed is not None else Recording()
+    changes = {k: v for k, v in (("noise_um", noise_um), ("lead_s", lead_s),
+                                 ("clock_ppm", clock_ppm)) if v is not None}
+    return hidden, dataclasses.replace(rec, **changes)
 
 
 def _play(x: np.ndarray, width: float, first_dir: float) -> np.ndarray:

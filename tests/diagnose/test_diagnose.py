@@ -48,6 +48,7 @@ def _run(setup, tmp_path, hidden, seed, **rec):
     return diagnose(plan, PROGRAM, read_trace(path), model), truth
 
 
+@pytest.mark.slow
 def test_alignment_recovers_offset_and_clock(setup, tmp_path):
     d, truth = _run(setup, tmp_path, [], 1, lead_s=12.345, clock_ppm=-170.0)
     assert d.alignment.offset_s == pytest.approx(12.345, abs=0.003)
@@ -73,6 +74,7 @@ def test_alignment_recovers_offset_and_clock(setup, tmp_path):
      lambda p: p["pitch_mm"] == pytest.approx(12.0, rel=0.01)
      and p["amplitude_um"] == pytest.approx(1.0, rel=0.15)),
 ])
+@pytest.mark.slow
 def test_a_hidden_effect_is_named_first_and_measured(setup, tmp_path, hidden, check):
     d, _ = _run(setup, tmp_path, [hidden], 3)
     assert d.findings and d.findings[0].effect == hidden.name, [f.effect for f in d.findings]
@@ -92,6 +94,7 @@ def test_a_hidden_effect_is_named_first_and_measured(setup, tmp_path, hidden, ch
     assert d.unexplained["significant"] is False
 
 
+@pytest.mark.slow
 def test_outside_the_library_stays_unexplained(setup, tmp_path):
     d, _ = _run(setup, tmp_path, [Hidden("bump", {"count": 2, "height_um": 8.0, "width_s": 0.3,
                                                   "seed": 5})], 4)
@@ -101,6 +104,7 @@ def test_outside_the_library_stays_unexplained(setup, tmp_path):
         assert d.unexplained["where"]["time_windows_s"]
 
 
+@pytest.mark.slow
 def test_mimics_are_reported(setup, tmp_path):
     """Equal servo lag and contour smoothing both shrink the radius while moving."""
     d, _ = _run(setup, tmp_path, [Hidden("servo_lag", {"kv_per_s": 25.0})], 5)
@@ -114,6 +118,7 @@ def test_mimics_are_reported(setup, tmp_path):
     assert other not in [g.effect for g in d.findings]
 
 
+@pytest.mark.slow
 def test_cli_perturb_diagnose_json_and_pictures(plan_dir, tmp_path):
     m, truth, out = tmp_path / "m.csv", tmp_path / "truth.json", tmp_path / "d.json"
     r = _cli("perturb", "--plan", str(plan_dir), "--program", PROGRAM, "--model", "paper_table2",
@@ -138,6 +143,7 @@ def test_cli_perturb_diagnose_json_and_pictures(plan_dir, tmp_path):
         assert (tmp_path / "pics" / name).read_bytes()[:4] == b"\x89PNG"
 
 
+@pytest.mark.slow
 def test_same_input_same_report(setup, plan_dir, tmp_path):
     """The same recording diagnosed twice gives the same report to the byte: here once
     in this process and once, at the same time, by the command line in another (its own
@@ -158,6 +164,7 @@ def test_same_input_same_report(setup, plan_dir, tmp_path):
     assert a["findings"][0]["effect"] == "reversal_spike"
 
 
+@pytest.mark.slow
 def test_bad_measured_traces(plan_dir, tmp_path):
     short = tmp_path / "short.csv"
     short.write_text("t_s,delta_l_um\n" + "".join(f"{k / 1000:.3f},0.5\n" for k in range(3000)))
@@ -194,6 +201,7 @@ def test_fast_and_careful_trace_readers_agree(tmp_path):
     assert np.isnan(fast.delta_l_um[::97]).all()
 
 
+@pytest.mark.slow
 def test_five_axis_rotary_lag_mismatch(tmp_path):
     """On the B-C table sample the bar never sees Y (the set-up keeps it in the XZ
     plane): effects stay on the axes the bar sees, and a lagging C axis is found."""
@@ -236,6 +244,7 @@ def test_five_axis_rotary_lag_mismatch(tmp_path):
     assert d.unexplained["significant"] is False
 
 
+@pytest.mark.slow
 def test_more_bad_input(plan_dir, tmp_path):
     """An all-dropout recording, an infinite reading, a misspelt effect parameter."""
     empty = tmp_path / "empty.csv"
@@ -254,6 +263,7 @@ def test_more_bad_input(plan_dir, tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.campaign
 def test_blind_check_on_the_independent_generator(plan_dir, tmp_path):
     """``validation/blind_check.py`` end to end on two recordings of the independent
     generator (nothing of sdit_path in it): a clean trace gets no finding, and a mount
@@ -631,6 +641,7 @@ def test_the_blind_set_says_what_a_set_up_change_would_hide(plan_dir):
     assert play["excited_beyond_setup"]
 
 
+@pytest.mark.slow
 def test_a_polished_alignment_that_explains_little_is_checked_against_its_neighbours(
         plan_dir, setup, tmp_path):
     """With reversal-locked shapes in the alignment's model the residual has minima a
@@ -722,6 +733,7 @@ def test_the_set_up_and_an_effect_are_tried_together_when_neither_passes_alone()
     assert selection._joint_mounting(trials, *args, companions=0) is None
 
 
+@pytest.mark.slow
 def test_a_pulse_whose_shape_holds_the_timing_is_searched_with_its_reading_shifted(
         plan_dir, setup, tmp_path):
     """On a trace whose timing is held by pulses after reversals, the pulses' shape and
@@ -764,6 +776,7 @@ def test_a_pulse_whose_shape_holds_the_timing_is_searched_with_its_reading_shift
     assert pulse.nonlinear["rise_ms"] < 9.0 and pulse.nonlinear["onset_mm_s"] < 0.1
 
 
+@pytest.mark.slow
 def test_a_play_that_stood_anywhere_at_the_start_is_read_and_invents_no_pulse(
         plan_dir, setup, tmp_path):
     """Where a play stood when the recording began is not known (the move before the

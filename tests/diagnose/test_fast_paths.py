@@ -34,6 +34,7 @@ def recorded(golden_plans):
     return plan, ctx, expected, X, np.asarray(trace.t_s, float), np.asarray(trace.delta_l_um, float)
 
 
+@pytest.mark.slow
 def test_the_direct_correlation_finds_what_the_transforms_found(recorded, monkeypatch):
     """A lead of seconds leaves a few dozen offsets: the coarse search correlates them
     with one matrix product; forced to the transforms it must find the same minima."""
@@ -48,6 +49,7 @@ def test_the_direct_correlation_finds_what_the_transforms_found(recorded, monkey
     assert abs(direct[0][0] - 3.5) < 0.05 and abs(direct[0][1] + 70.0) <= step_ppm, direct
 
 
+@pytest.mark.slow
 def test_gauss_newton_stops_at_a_hundredth_of_the_uncertainty(recorded, monkeypatch):
     """Stopping once a step is below 1 % of the timing's uncertainty lands within 2 % of
     it from where the search went on to rounding, with fewer residual evaluations."""

@@ -36,6 +36,7 @@ def _diagnose(golden, hidden, seed=1):
     return diagnose(plan, PROGRAM, trace, model, OPTIONS, ctx=ctx)
 
 
+@pytest.mark.slow
 def test_held_out_stretches_cover_every_kind(golden):
     """Every third stretch of the program held out every descending half of GOLD_A's
     sectors (period 3: node, rising half, falling half): the fit saw the ball only rise.
@@ -59,11 +60,12 @@ def test_held_out_stretches_cover_every_kind(golden):
     assert 0.25 < share < 0.4, share
 
 
+@pytest.mark.slow
 def test_a_play_is_sized_with_the_others_in_and_brings_no_spike(golden):
-    """A play operator's width was searched when it was chosen, before the bar length
-    was in: 8.4 um for a 9.5 um play, and the ramp it missed after every reversal came
-    back as a high-confidence reversal spike (3 seeds of 3).  Searched again with every
-    other finding in, the play stands alone."""
+    """A play operator's width searched when it is chosen, before the bar length is in,
+    comes out short, and the ramp it misses after every reversal comes back as a
+    high-confidence reversal spike (hard case: test-play-sized-with-the-others).
+    Searched again with every other finding in, the play stands alone."""
     d = _diagnose(golden, [Hidden("setup_offset", {"dx_um": -16.0, "dy_um": 5.0, "dz_um": -82.0}),
                            Hidden("bar_length", {"dL_um": -3.2}),
                            Hidden("backlash", {"axis": "Y", "play_um": 9.5})])
@@ -74,6 +76,7 @@ def test_a_play_is_sized_with_the_others_in_and_brings_no_spike(golden):
     assert abs(play.nonlinear["width_Y_um"] - 9.5) < 0.6, play.nonlinear
 
 
+@pytest.mark.slow
 def test_the_mounting_is_tried_whole_when_neither_part_passes_alone(golden):
     """A set-up offset and a bar length that, on this layer, each fit the fitted
     stretches at the held-out ones' expense (a first geometry estimate had moved part

@@ -57,6 +57,7 @@ def recorded(tmp_path_factory, golden_plans):
     return {"root": root, "plan": plan, "files": files, "truth": truth, "out": out, "run": r}
 
 
+@pytest.mark.slow
 def test_recognised_aligned_and_geometry_within_its_uncertainty(recorded):
     r = recorded["run"]
     assert r.returncode == 0, r.stderr
@@ -89,6 +90,7 @@ def test_recognised_aligned_and_geometry_within_its_uncertainty(recorded):
     assert aligned == ["GOLD_A_rec0.csv", "GOLD_B_rec1.csv"]
 
 
+@pytest.mark.slow
 def test_a_recording_of_another_feed_is_refused_and_nothing_is_written(recorded, golden_plans,
                                                                        tmp_path):
     rec = tmp_path / "slow.csv"
@@ -105,6 +107,7 @@ def test_a_recording_of_another_feed_is_refused_and_nothing_is_written(recorded,
         assert not out.exists()
 
 
+@pytest.mark.slow
 def test_bad_requests_get_one_line_and_touch_nothing(recorded, tmp_path):
     plan, rec = str(recorded["plan"]), str(recorded["files"][0])
     before = sorted(p.name for p in recorded["plan"].iterdir())

@@ -24,6 +24,7 @@ def plans(golden_plans):
     return golden_plans
 
 
+@pytest.mark.slow
 def test_a_recording_started_early_on_a_wrong_clock_is_aligned_before_identification(
         plans, tmp_path):
     rec, truth = tmp_path / "m.csv", tmp_path / "truth.json"
@@ -52,6 +53,7 @@ def test_a_recording_started_early_on_a_wrong_clock_is_aligned_before_identifica
     assert "aligned to GOLD_A" in r.stdout and "WARNING" not in r.stdout
 
 
+@pytest.mark.slow
 def test_a_recording_at_another_feed_is_refused_naming_what_fits(plans, tmp_path):
     rec = tmp_path / "slow.csv"
     r = run("perturb", "--plan", str(plans["slow"]), "--program", "GOLD_A", "--model",
@@ -73,6 +75,7 @@ def test_a_recording_at_another_feed_is_refused_naming_what_fits(plans, tmp_path
     assert "aligned to GOLD_A" in r.stdout and "WARNING" not in r.stdout
 
 
+@pytest.mark.slow
 def test_a_fit_far_above_the_recordings_noise_is_not_printed_as_determined_silently(
         plans, tmp_path):
     rec = tmp_path / "lash.csv"
@@ -101,6 +104,7 @@ def default_feeds(tmp_path_factory, default_text):
     return out
 
 
+@pytest.mark.slow
 def test_a_slower_layer_of_the_same_plan_is_refused(default_feeds, tmp_path):
     """SDIT_A recorded at F360 and aligned as SDIT_A of the F600 plan (a 404 s recording
     fits it by duration): with a 23 um set-up the reading is still in 7 of 13 dwells and

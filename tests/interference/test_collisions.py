@@ -55,6 +55,7 @@ def test_colliding_sample_is_caught_with_pair_and_location():
     assert "at ball (150.000, 0.000, 50.000) mm" in first and "contact near" in first
 
 
+@pytest.mark.slow
 def test_skip_infeasible_leaves_them_out_and_marks_why(tmp_path):
     out = tmp_path / "o"
     r = subprocess.run([sys.executable, "-m", "sdit_path", "plan",
@@ -73,6 +74,7 @@ def test_skip_infeasible_leaves_them_out_and_marks_why(tmp_path):
     assert "A1-1" not in prog["segment_order"] and prog["remounts"] == 10
 
 
+@pytest.mark.slow
 def test_a_bulky_spindle_nose_is_caught(default_text):
     """A nose hanging below the ball swallows the bar."""
     text = default_text.replace('size_mm = [50.0, 150.0]\nposition_mm = [0.0, 0.0, 173.0]',
@@ -82,6 +84,7 @@ def test_a_bulky_spindle_nose_is_caught(default_text):
     assert err.value.details[0].startswith("layer A, A1-1: collision spindle_nose/bar")
 
 
+@pytest.mark.slow
 def test_unreachable_rotary_schedule_names_axis_and_overshoot():
     text = sample_path("bc_table_5axis.toml").read_text()
     text = edit(text, "tilt_at_pole_deg", "150.0")

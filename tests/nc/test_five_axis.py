@@ -64,6 +64,7 @@ def _spline_radius_error(read, kin, h) -> float:
     return worst
 
 
+@pytest.mark.slow
 def test_traori_programs_keep_the_table_frame_path_on_the_sphere(five_plan):
     h = five_plan.hemisphere
     progs = [p for p in five_plan.programs if p.controller == "sinumerik840d"]
@@ -84,6 +85,7 @@ def test_traori_programs_keep_the_table_frame_path_on_the_sphere(five_plan):
         assert 355 < c.max() - c.min() < 365            # C turns once with the bar
 
 
+@pytest.mark.slow
 def test_machine_mode_840d_spline_stays_on_the_sphere_through_fk():
     text = sample_path("bc_table_5axis.toml").read_text()
     text = edit(text, "five_axis_mode", '"machine"')
@@ -100,6 +102,7 @@ def test_machine_mode_840d_spline_stays_on_the_sphere_through_fk():
     assert {p["frame"]["name"] for p in m["programs"]} == {"machine"}
 
 
+@pytest.mark.oracle
 def test_linuxcnc_five_axis_programs_pass_the_interpreter_on_the_sphere(five_plan, tmp_path):
     _require_interpreter()
     from linuxcnc_oracle import interpret, ok
@@ -128,6 +131,7 @@ def test_plan_json_says_which_frame(five_plan):
     json.dumps(m)
 
 
+@pytest.mark.slow
 def test_locked_schedule_on_the_five_axis_machine_sets_rotary_axes_once():
     text = edit(sample_path("bc_table_5axis.toml").read_text(), "schedule", '"locked"')
     text = edit(text, "track_elevations_deg", "[0.0, 45.0]")
@@ -146,6 +150,8 @@ def test_locked_schedule_on_the_five_axis_machine_sets_rotary_axes_once():
 TILTED = '\n[[test.curve.override]]\nsector = "A2"\ntilt_offset_deg = 12.0\n'
 
 
+@pytest.mark.slow
+@pytest.mark.oracle
 def test_a_sectors_tilt_offset_tilts_only_its_patch_and_keeps_every_program_on_the_sphere(tmp_path):
     """``tilt_offset_deg`` (issue 17): over its sector's patch the table tilts away from
     the schedule, smoothly to zero at the patch's boundary (the nodes, the tracks); the

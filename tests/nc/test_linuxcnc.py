@@ -57,6 +57,7 @@ def _require_interpreter():
         pytest.skip("LinuxCNC interpreter (linuxcnc-uspace) not installed")
 
 
+@pytest.mark.oracle
 def test_bundled_programs_pass_the_real_interpreter(default_plan, tmp_path):
     """Every LinuxCNC layer program runs in LinuxCNC's own interpreter without error;
     every point it reports, and every chord between them, lies on the sphere within
@@ -89,6 +90,7 @@ def test_bundled_programs_pass_the_real_interpreter(default_plan, tmp_path):
             assert np.abs(before - node_pos[d.node_id]).max() < 2e-6
 
 
+@pytest.mark.oracle
 def test_interpreter_rejects_a_broken_program(tmp_path):
     """The oracle can fail: a program with an error is reported as one."""
     _require_interpreter()

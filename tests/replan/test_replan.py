@@ -35,6 +35,7 @@ def bad_plan(tmp_path_factory) -> Path:
     return d
 
 
+@pytest.mark.slow
 def test_a_sector_made_bad_is_named_with_its_reason(bad_plan):
     plan = load_plan(bad_plan / "plan")
     rev = review(plan.config, plan.tested_travel())
@@ -55,6 +56,7 @@ def replanned(bad_plan) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_replan_clears_it_and_writes_a_plan(bad_plan, replanned, tmp_path):
     out = replanned
     rep = json.loads((out / "replan.json").read_text())
@@ -91,6 +93,7 @@ def test_replan_clears_it_and_writes_a_plan(bad_plan, replanned, tmp_path):
         assert (out / f).read_bytes() == (tmp_path / "re2" / f).read_bytes()
 
 
+@pytest.mark.slow
 def test_replan_refuses_bad_requests_in_one_line(bad_plan, tmp_path):
     r = cli("replan", "--plan", str(bad_plan / "plan"), "--segment", "Z9-9", "--out", str(tmp_path / "x"),
             "-q")
@@ -117,6 +120,8 @@ def test_overrides_replace_earlier_ones_for_the_same_sector(bad_plan):
     assert new.text.count("[[test.curve.override]]") == 1
 
 
+@pytest.mark.slow
+@pytest.mark.oracle
 def test_a_sector_at_its_own_feed_runs_at_it_in_every_program(bad_plan, tmp_path):
     """``feed_mm_per_min`` in a sector's override: its curves are timed and programmed at
     that feed (both controllers; the LinuxCNC interpreter takes it and the test's feed
@@ -157,6 +162,7 @@ def test_a_sector_at_its_own_feed_runs_at_it_in_every_program(bad_plan, tmp_path
         assert rates == [1000.0, 400.0, 1000.0, 400.0, 1000.0]
 
 
+@pytest.mark.slow
 def test_a_sector_run_too_fast_is_named_for_its_servo_sensitivity_and_slowed(bad_plan):
     """A sector made bad on purpose by its feed (A2 at 2500 of 1000 mm/min): a 1 ms lag
     reads 2.7 times the plan's median there.  Its reason is named, the candidates hold
@@ -191,6 +197,7 @@ def test_a_sector_run_too_fast_is_named_for_its_servo_sensitivity_and_slowed(bad
     assert 0.45 < ratio < 0.55
 
 
+@pytest.mark.oracle
 def test_remeasure_program_runs_only_the_replanned_sector_from_and_back_to_a1(replanned):
     """The short program per affected layer: from A-1 along the track to the sector's
     node, the sector forward and back, and home; the same lint, on-sphere read-back and
@@ -231,6 +238,7 @@ def test_remeasure_program_runs_only_the_replanned_sector_from_and_back_to_a1(re
     assert len(new.trajectory("GOLD_A_R").t_s) > 1000
 
 
+@pytest.mark.slow
 def test_a_lags_bias_cancels_over_both_passes_and_not_over_one(bad_plan):
     """The servo-bias score (what a 1 ms lag of one axis does to the determined
     combinations, in their uncertainties): a lag is odd in the velocity, so the forward
@@ -293,6 +301,7 @@ def test_a_pose_reason_on_moving_rotary_axes_tries_the_table_tilted_over_the_pat
     assert label == "feed 300 mm/min, tilt offset -10 deg"
 
 
+@pytest.mark.slow
 def test_a_clearance_at_a_node_is_held_by_the_set_up_and_set_up_changes_are_planned(tmp_path):
     """On the 5-axis sample the tool holder passes 4 mm over the bar where the bar is
     level (the equator's nodes): every curve of a sector passes its nodes, so that
@@ -336,6 +345,8 @@ def test_a_clearance_at_a_node_is_held_by_the_set_up_and_set_up_changes_are_plan
     assert raised["min_clearance_mm"] > min(x.value for x in at_node.values())
 
 
+@pytest.mark.slow
+@pytest.mark.oracle
 def test_a_sectors_crest_moves_where_asked_and_every_program_stays_on_the_sphere(bad_plan, tmp_path):
     """``crest_at`` in a sector's override (the wave's phase within the sector): its
     curves crest there, leave and reach the same nodes, the other sectors' samples are

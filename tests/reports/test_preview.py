@@ -5,12 +5,14 @@ import sys
 
 import matplotlib.image as mpimg
 import numpy as np
+import pytest
 
 from sdit_path.output import MARKER
 
 from conftest import DATA
 
 
+@pytest.mark.slow
 def test_preview_writes_three_readable_pictures_per_layer(tmp_path):
     out = tmp_path / "prev"
     r = subprocess.run([sys.executable, "-m", "sdit_path", "preview", str(DATA / "golden_small.toml"),

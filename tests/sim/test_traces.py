@@ -42,6 +42,7 @@ def test_bad_traces_name_the_line(tmp_path, text, expected):
     assert expected in str(err.value)
 
 
+@pytest.mark.slow
 def test_simulate_then_identify_from_the_cli(tmp_path):
     plan_dir = tmp_path / "plan"
 

@@ -26,6 +26,7 @@ def top_layer_f2000():
     return cfg, timer, timer.time_layer(PathBuilder(cfg, hemi).layer_path(layer))
 
 
+@pytest.mark.slow
 def test_curved_runs_are_quicker_along_the_axis_path(top_layer_f2000):
     _, timer, timed = top_layer_f2000
     runs = [i for i in timed.items if isinstance(i, TimedRun)]

@@ -49,6 +49,7 @@ def _random_config(seed: int):
     return parse_config(text, f"timing{seed}.toml")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(6))
 def test_axis_limits_hold_on_the_exported_trajectory(seed):
     cfg = _random_config(seed)
@@ -79,6 +80,7 @@ def test_axis_limits_hold_on_the_exported_trajectory(seed):
         assert any(b != "feed" for b in bindings), bindings  # high feed: curvature binds
 
 
+@pytest.mark.slow
 def test_curvature_binds_at_high_feed_and_limits_still_hold():
     text = sample_path("vmc_3axis.toml").read_text()
     text = text[: text.index("[[scene.parts]]")] + text[text.index("[post]"):]
@@ -98,6 +100,7 @@ def default_files(default_plan):
     return trajectory_files(default_plan)
 
 
+@pytest.mark.slow
 def test_trajectory_sits_at_the_nodes_during_dwells(default_plan, default_files):
     nodes = {n.id: n.position_mm for n in default_plan.hemisphere.nodes}
     for lp in default_plan.layers:

@@ -1,0 +1,32 @@
+"""``sdit-path diagnose``: one recording of a named program, matched and aligned as every
+command that reads a recording does it, then diagnosed."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from ..diagnose import Diagnosis, diagnose
+from ..diagnose.align import AlignmentError
+from ..diagnose.recording import align_recording
+from ..errormodel.errorset import ErrorSet
+from ..plan.files import PlanFiles
+from ..reading.context import Context, build_context
+from ..reading.trace import Trace
+
+
+def diagnose_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
+                       model: ErrorSet | None = None,
+                       step: Callable[[str], None] = lambda msg: None
+                       ) -> tuple[Diagnosis, Context]:
+    """The diagnosis of ``trace`` (the file ``label``) against ``program`` and the reading
+    ``model`` predicts, and the program's context (for the pictures)."""
+    ctx = build_context(plan, program)
+    step("matching the recording to its program")
+    rec = align_recording(plan, program, trace, label, ctx)
+    try:
+        # with a geometric model the search is made again with what it predicts
+        result = diagnose(plan, program, trace, model, progress=step, ctx=ctx,
+                          alignment=rec.alignment if model is None else None)
+    except AlignmentError as exc:
+        raise AlignmentError(f"{label}: {exc}") from None
+    return result, ctx
