@@ -375,28 +375,18 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
 def replan_command(plan_dir, segments, analysis_file, out_dir, force, jobs, quiet) -> None:
     """Find a plan's bad segments, say why, re-plan their sectors and write the
     re-planned plan (the config carries the new curves as overrides)."""
-    import json
     from pathlib import Path
 
-    from .errors import ConfigError
     from .output import check_output, write_tree
     from .parallel import default_jobs
-    from .plan.pipeline import plan
     from .plan.files import load_plan
-    from .replan import analysis_reasons, replan
-    from .reports.replan import pictures, report_text
-    from .plan.manifest import plan_directory_files
+    from .replan import replan
+    from .replan.run import analysis_file_reasons, replanned_plan
+    from .reports.replan import replan_files
 
     try:
         old = load_plan(plan_dir)
-        measured = None
-        if analysis_file:
-            try:
-                data = json.loads(Path(analysis_file).read_text(encoding="utf-8"))
-            except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-                raise ConfigError(analysis_file, f"expected the analysis.json written by "
-                                                 f"sdit-path analyse ({type(exc).__name__})") from None
-            measured = analysis_reasons(old, data, analysis_file)
+        measured = analysis_file_reasons(old, analysis_file) if analysis_file else None
         protect = (Path(plan_dir) / "plan.json", Path(plan_dir) / "config.toml",
                    *((analysis_file,) if analysis_file else ()))
         check_output(out_dir, force, "replan", protect)
@@ -404,19 +394,8 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, jobs, quie
             result = replan(old, list(segments) or None, on_step=step.note, measured=measured,
                             on_stage=step, jobs=jobs or default_jobs())
             step("planning with the chosen curves")
-            # segments the plan left out as infeasible (--skip-infeasible) stay out
-            # when no curve made them feasible
-            skip = any(s.get("status") == "omitted" for s in old.manifest.get("segments", []))
-            planned = plan(result.config, on_step=step.note, skip_infeasible=skip)
-            files = plan_directory_files(planned, on_step=step.note)
-            report = result.to_json()
-            manifest = json.loads(files["plan.json"])
-            manifest["replan"] = {"from": str(Path(plan_dir).name), **report}
-            files["plan.json"] = json.dumps(manifest, indent=2, ensure_ascii=False) + "\n"
-            files["replan.json"] = json.dumps(report, indent=2) + "\n"
-            files["replan.txt"] = report_text(result)
-            for name, png in pictures(result).items():
-                files[f"pictures/{name}"] = png
+            planned = replanned_plan(old, result, on_step=step.note)
+            files = replan_files(result, planned, str(Path(plan_dir).name), on_step=step.note)
             step("writing")
             write_tree(out_dir, files, force=force, command="replan", protect=protect)
     except SditError as exc:

@@ -91,7 +91,7 @@ CAMPAIGNS = (
     (Campaign(
         "Self-check of the diagnosis on `perturb`'s recordings (not blind)",
         "selfcheck.json",
-        "python validation/perturb_selfcheck.py --cases 24 --jobs 2 --json "
+        "python validation/perturb_selfcheck.py --cases 8 --jobs 2 --json "
         "validation/results/selfcheck.json",
         "python validation/perturb_selfcheck.py --rescore validation/results/selfcheck.json",
         "`perturb` builds its recordings with the diagnosis' own context, so this is a "

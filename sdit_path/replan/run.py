@@ -5,14 +5,17 @@ re-planned, and the plan reviewed again with the chosen curves; the result froze
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from ..config import Config
 from ..errors import ConfigError
 from ..interference.scene import Scene
 from ..machine.kinematics import Kinematics
 from ..plan.files import PlanFiles
+from ..plan.pipeline import PlanResult, plan
 from .candidates import (OVERRIDE_KEYS, Candidate, choose, current_overrides, sector_of,
                          with_overrides)
 from .evaluate import BIAS_NOISE_UM, Limits, Reason, Review, review
@@ -70,6 +73,25 @@ def analysis_reasons(plan: PlanFiles, analysis: dict, source: str,
                     f"{r['program']}: {rms:.2f} um RMS left unexplained ({rms / noise:.1f} x the "
                     f"recording's noise)"))
     return out
+
+
+def analysis_file_reasons(plan: PlanFiles, path: str) -> dict[str, list[Reason]]:
+    """:func:`analysis_reasons` of the ``analysis.json`` at ``path`` (one line naming it
+    where it is not one)."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(path, f"expected the analysis.json written by "
+                                f"sdit-path analyse ({type(exc).__name__})") from None
+    return analysis_reasons(plan, data, path)
+
+
+def replanned_plan(old: PlanFiles, result: "Replan", on_step=None) -> PlanResult:
+    """The re-planned plan: ``result``'s config planned as ``plan`` does; segments the
+    old plan left out as infeasible (``--skip-infeasible``) stay out when no curve made
+    them feasible."""
+    skip = any(s.get("status") == "omitted" for s in old.manifest.get("segments", []))
+    return plan(result.config, on_step=on_step, skip_infeasible=skip)
 
 
 def replan(plan: PlanFiles, segments: list[str] | None = None, limits: Limits = Limits(),

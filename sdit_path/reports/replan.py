@@ -4,9 +4,13 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from ..config import Config
+from ..plan.manifest import plan_directory_files
+from ..plan.pipeline import PlanResult
 from ..replan import Replan
 from ..replan.candidates import sector_of
 from ..replan.evaluate import BIAS_NOISE_UM
@@ -138,3 +142,20 @@ def _polar_view(cfg: Config, s: Samples) -> tuple[np.ndarray, np.ndarray]:
     colat = 90.0 - np.degrees(np.arcsin(np.clip(p[:, 2] / r, -1, 1)))
     az = np.arctan2(p[:, 1], p[:, 0])
     return colat * np.cos(az), colat * np.sin(az)
+
+
+def replan_files(result: Replan, planned: PlanResult, source: str,
+                 on_step=None) -> dict[str, str | bytes]:
+    """Every file ``replan`` writes (relative path -> content): the re-planned plan's
+    directory, its ``plan.json`` carrying the re-plan (``from``: the old plan's folder
+    name ``source``), ``replan.json``, ``replan.txt`` and the pictures."""
+    files = plan_directory_files(planned, on_step=on_step)
+    report = result.to_json()
+    manifest = json.loads(files["plan.json"])
+    manifest["replan"] = {"from": source, **report}
+    files["plan.json"] = json.dumps(manifest, indent=2, ensure_ascii=False) + "\n"
+    files["replan.json"] = json.dumps(report, indent=2) + "\n"
+    files["replan.txt"] = report_text(result)
+    for name, png in pictures(result).items():
+        files[f"pictures/{name}"] = png
+    return files
