@@ -79,9 +79,10 @@ class _Steps:
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="sdit-path")
 def main() -> None:
-    """Plan spatial double-ball-bar identification tests (SDIT), write their NC programs,
-    preview their feed profiles, simulate ballbar traces and identify what a trace
-    determines about the machine's geometric errors."""
+    """Plan spatial double-ball-bar identification tests (SDIT) and write their NC
+    programs (plan, preview); analyse the recordings of a test (analyse: geometry,
+    effects and what stays unexplained; identify, diagnose); re-plan bad segments
+    (replan); rehearse with simulated recordings (simulate, perturb)."""
 
 
 @main.command("plan")
