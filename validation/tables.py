@@ -14,6 +14,7 @@ import contextlib
 import io
 import json
 import sys
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +30,7 @@ class Campaign:
     made_by: str  # the command that wrote it
     printed_by: str  # the command that prints its figures
     what: str  # what it scores, in a few lines
+    reading: str = ""  # how to read its figures
 
 
 def _blind(rows: list) -> None:
@@ -51,6 +53,19 @@ def _selfcheck(rows: list) -> None:
 
 SCORERS = {"blind": _blind, "analyse": _analyse, "selfcheck": _selfcheck}
 
+BLIND = ("How to read it: *named first*: the hidden effect is the diagnosis' first finding "
+        "(or named with the partner the recording cannot tell it from), counted where it "
+        "shows above the noise where it acts; *clean*: no finding besides the set-up; "
+        "*gap unexplained*: an effect outside the library gets no high-confidence finding "
+        "and stays unexplained or unnamed; *held-out shrink*: the part of the gap above the "
+        "noise the finding removes on the stretches the fit never saw; *offset* and "
+        "*clock*: the alignment's error against the generator's truth (the offset beyond "
+        "the machine's following delay), within 2 ms / 5 ppm or 3 times the generator's "
+        "Cramer-Rao bound (CRB) of the recording's timing, whichever is larger (the literal "
+        "2 ms / 5 ppm lie below what any estimator reaches on most recordings: the "
+        "CHANGELOG, issue 15); *covers*: the error within 3 of the stated standard "
+        "uncertainties (k=1).")
+
 CAMPAIGNS = (
     (Campaign(
         "Blind check of the diagnosis, the domain brief's bad magnitudes",
@@ -64,7 +79,8 @@ CAMPAIGNS = (
         "at F600, SDIT_B of it at F2000 and SDIT5_C of the 5-axis sample. Per program the "
         "cases take in turn two clean recordings, each effect of the generator and each "
         "effect outside the library. The diagnosis reads the recording's file and the plan, "
-        "nothing else; only then is it scored against the truth the generator kept."),
+        "nothing else; only then is it scored against the truth the generator kept.",
+        BLIND),
      "blind"),
     (Campaign(
         "Blind check of the diagnosis, typical magnitudes",
@@ -73,7 +89,7 @@ CAMPAIGNS = (
         "--magnitudes typical --json validation/results/blind_typical.json",
         "python validation/blind_check.py --rescore validation/results/blind_typical.json",
         "As above, with the effects drawn at the magnitudes of a healthy machine (the "
-        "domain brief's typical column): smaller, closer to the noise."),
+        "domain brief's typical column): smaller, closer to the noise.", BLIND),
      "blind"),
     (Campaign(
         "Blind check of `analyse`",
@@ -86,7 +102,14 @@ CAMPAIGNS = (
         "a set-up offset and an unknown start, clock and noise; `analyse` sees the plan and "
         "the files. Scored: every determined combination within three standard "
         "uncertainties, the effect named, the start and clock, and the refusal of "
-        "recordings of another feed, another plan, or named as another program."),
+        "recordings of another feed, another plan, or named as another program.",
+        "How to read it: *within 3 std*: each determined combination of geometric errors "
+        "within three of its stated standard uncertainties (k=1) of the truth; *named "
+        "first*: the hidden effect is the first finding of the recording's diagnosis (an "
+        "ambiguous finding that names it with its partner is counted apart); *start* "
+        "within 50 ms (a servo lag's delay is part of it) and *clock* within 5 ppm or 4 of "
+        "its stated uncertainties; *refused*: the recording is refused with one line and "
+        "nothing is written."),
      "analyse"),
     (Campaign(
         "Self-check of the diagnosis on `perturb`'s recordings (not blind)",
@@ -97,36 +120,51 @@ CAMPAIGNS = (
         "`perturb` builds its recordings with the diagnosis' own context, so this is a "
         "self-consistency check, not a blind one: the default sample at F1500, Table 2's "
         "geometry, clean traces, one or several hidden effects of the library and effects "
-        "outside it."),
+        "outside it.",
+        "How to read it: *top-1*: the first finding is a hidden effect; *held-out shrink*: "
+        "the part of the gap (above the noise floor: of the gap beyond the noise) the "
+        "findings remove on held-out stretches; *localisation overlap*: shared segments "
+        "of where the finding and the hidden effect live; *false findings*: any finding "
+        "on a clean trace; *honest*: an effect outside the library gets no "
+        "high-confidence finding; *offset error* includes each machine's following "
+        "delay."),
      "selfcheck"),
 )
+
+
+def _para(text: str) -> str:
+    return textwrap.fill(text, 88, break_on_hyphens=False, break_long_words=False) + "\n\n"
 
 
 def page() -> str:
     out = io.StringIO()
     w = out.write
-    w("# Validation\n\n"
-      "Current figures of the validation campaigns. Each table is printed from a results "
-      "file under `validation/results/` by the campaign's own scoring code; the file was "
-      "made by the command given, and the second command prints the table again. This "
-      "page is generated:\n\n"
-      "```sh\npython validation/tables.py > docs/validation/index.md\n```\n\n"
-      "History (earlier figures, with the commit they were measured at) is in the "
-      "[CHANGELOG](../../CHANGELOG.md). The recordings that motivated a rule of the "
-      "diagnosis are named in `validation/hard_cases.toml`; the speed benchmarks are in "
-      "`bench/` ([testing](../development/testing.md)).\n")
+    w("# Validation\n\n")
+    w(_para("Current figures of the validation campaigns. Each table is printed from a "
+            "results file under `validation/results/` by the campaign's own scoring code; "
+            "the file was made by the command given, and the second command prints the "
+            "table again. This page is generated:"))
+    w("```sh\npython validation/tables.py > docs/validation/index.md\n```\n\n")
+    w(_para("History (earlier figures, with the commit they were measured at) is in the "
+            "[CHANGELOG](../../CHANGELOG.md). The recordings that motivated a rule of the "
+            "diagnosis are named in `validation/hard_cases.toml`; the speed benchmarks are "
+            "in `bench/` ([testing](../development/testing.md))."))
     for campaign, kind in CAMPAIGNS:
-        w(f"\n## {campaign.title}\n\n{campaign.what}\n\n")
+        w(f"## {campaign.title}\n\n")
+        w(_para(campaign.what))
+        if campaign.reading:
+            w(_para(campaign.reading))
         path = RESULTS / campaign.results
-        w(f"Made by `{campaign.made_by}`; printed by `{campaign.printed_by}`.\n\n")
+        w("Made by\n\n```sh\n" + campaign.made_by + "\n```\n\nand printed by\n\n```sh\n"
+          + campaign.printed_by + "\n```\n\n")
         if not path.exists():
-            w("(No results file yet.)\n")
+            w("(No results file yet.)\n\n")
             continue
         buf = io.StringIO()
         with contextlib.redirect_stdout(buf):
             SCORERS[kind](json.loads(path.read_text(encoding="utf-8")))
-        w("```\n" + buf.getvalue().strip("\n") + "\n```\n")
-    return out.getvalue()
+        w("```\n" + buf.getvalue().strip("\n") + "\n```\n\n")
+    return out.getvalue().rstrip("\n") + "\n"
 
 
 if __name__ == "__main__":
