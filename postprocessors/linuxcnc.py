@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import re
 
+from sdit_path.nc.chords import CornerModel
 from sdit_path.nc.program import (Comment, Dwell, LinearMove, PolylineMove, Program,
                                   ProgramStop, SplineMove)
 from sdit_path.nc.text import neutralise
@@ -46,6 +47,14 @@ class LinuxCNC:
     short = "LinuxCNC"
     extension = ".ngc"
     path_form = "chords"
+    #: LinuxCNC 2.9's planner joins two chords at the feed when the turn, taken within one
+    #: 1 ms servo period, asks at most ARC_BLEND_KINK_RATIO (default 0.1) of an axis'
+    #: acceleration (tp.c, tpSetupTangent), or rounds the corner with an arc within G64 P
+    #: at BLEND_ACC_RATIO_NORMAL (0.866) of it (tpCreateLineLineBlend); half of that
+    #: leaves room for a feed override up to 200 %; blocks shorter than 1.02 servo
+    #: periods at speed are slowed (TP_MIN_SEGMENT_CYCLES), so chords stay two periods long
+    corners = CornerModel(servo_period_s=0.001, kink_ratio=0.1, normal_accel_ratio=0.866,
+                          min_arc_periods=4.0, margin=0.5, min_block_periods=2.0)
 
     def render(self, program: Program) -> str:
         d = program.decimals

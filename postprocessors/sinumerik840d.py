@@ -43,6 +43,7 @@ class Sinumerik840D:
     short = "840D"
     extension = ".MPF"
     path_form = "spline"
+    corners = None  # a native spline: no chords
 
     # ------------------------------------------------------------------ rendering
 

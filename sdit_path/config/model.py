@@ -272,6 +272,7 @@ class PostConfig:
     spline_degree: int
     spline_tolerance_um: float
     chord_tolerance_um: float
+    chord_curve_tolerance_um: float
     work_offset: str
     comment: str
     five_axis_mode: str

@@ -379,8 +379,9 @@ def _scene(r: Reader, root: dict, machine: MachineConfig) -> SceneConfig:
 
 def _post(r: Reader, root: dict) -> PostConfig:
     p = r.table(root, "post", ("controllers", "program_prefix", "decimals", "spline_degree",
-                               "spline_tolerance_um", "chord_tolerance_um", "work_offset",
-                               "comment", "five_axis_mode"))
+                               "spline_tolerance_um", "chord_tolerance_um",
+                               "chord_curve_tolerance_um", "work_offset", "comment",
+                               "five_axis_mode"))
     controllers = r.strings(p, "post.controllers", ("sinumerik840d", "linuxcnc"))
     # the names are judged by the post-processor registry (sdit_path.nc.registry)
     if len(set(controllers)) != len(controllers):
@@ -399,6 +400,8 @@ def _post(r: Reader, root: dict) -> PostConfig:
         spline_tolerance_um=r.number(p, "post.spline_tolerance_um", 0.01, ge=0.001, le=100,
                                      unit="um"),
         chord_tolerance_um=r.number(p, "post.chord_tolerance_um", 0.1, ge=0.001, le=100, unit="um"),
+        chord_curve_tolerance_um=r.number(p, "post.chord_curve_tolerance_um", 1.0, ge=0.01,
+                                          le=1000, unit="um"),
         work_offset=offset,
         comment=r.string(p, "post.comment", ""),
         five_axis_mode=r.string(p, "post.five_axis_mode", "traori", FIVE_AXIS_MODES),

@@ -17,7 +17,7 @@ from ..geometry.nurbs import BSplineCurve
 from ..geometry.paths import LayerPath, Remount, Run
 from ..machine.kinematics import Kinematics
 from ..machine.schedule import RotarySchedule
-from .chords import chords_for_range
+from .chords import ChordLimits, CornerModel, run_chords
 from .five_axis import AxisTrack, round_axis_values, machine_chords, machine_spline, rotary_controls
 from .program import Comment, Dwell, LinearMove, PolylineMove, Program, ProgramStop, SplineMove
 from .text import program_name
@@ -63,9 +63,11 @@ def program_frame(config: Config, path_form: str) -> str:
 
 
 def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller: str,
-                  path_form: str, version: str) -> BuiltProgram:
+                  path_form: str, version: str, corners: CornerModel | None = None
+                  ) -> BuiltProgram:
     """Neutral program of one layer for a controller whose native path form is
-    ``path_form`` (``"spline"`` or ``"chords"``)."""
+    ``path_form`` (``"spline"`` or ``"chords"``); ``corners`` says when that control
+    joins two chords at the feed (chords only; None: any turn)."""
     post, test = config.post, config.test
     decimals = post.decimals
     feed = test.feed_mm_per_min
@@ -77,8 +79,12 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
     locked = tuple((n, round(math.degrees(v), decimals) + 0.0) for n, v in test.rotary.locked_rad)
     spline_tol = post.spline_tolerance_um * 1e-3
     chord_tol = post.chord_tolerance_um * 1e-3
+    curve_tol = post.chord_curve_tolerance_um * 1e-3
+    accel = [kin.axes[i].max_acceleration for i in kin.linear]
     name = program_name(post.program_prefix, path.layer)
     deviation: dict[str, float] = {}
+    from_curve: dict[str, float] = {}
+    turns: list[tuple[float, float, int]] = []  # per table-frame run: worst, limit, above it
     body: list = []
     carry = None
 
@@ -147,30 +153,32 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
             note(run, devs)
             current_q = qctrl[-1]
         elif frame == "machine":
-            q, lengths, labels, devs, carry = machine_chords(
+            q, lengths, labels, devs, offs, carry = machine_chords(
                 run, track, carry, hemi.centre_mm, hemi.radius_mm, chord_tol, decimals,
-                cast(np.ndarray, current_q), label)
+                cast(np.ndarray, current_q), label, curve_tol)
+            for piece, off in zip(run.pieces, offs):
+                from_curve[piece.id] = max(from_curve.get(piece.id, 0.0), off)
             rotary = tuple((n, np.degrees(q[:, kin.index[n]])) for n in rot_names)
             body.append(PolylineMove(q[:, lin], run_f, labels, rotary,
                                      run_f / np.maximum(lengths, 1e-9)))
             note(run, devs)
             current_q = q[-1]
         else:  # table-frame chords
-            points: list[np.ndarray] = []
-            labels = []
             end_node = (round_to_decimals(hemi.node(run.end_node).position_mm, decimals)
                         if run.end_node else run.curve.control_points_mm[-1])
-            for k, piece in enumerate(run.pieces):
-                last = k == len(run.pieces) - 1
-                verts, dev = chords_for_range(
-                    run.curve, piece.u_start, piece.u_end, hemi.centre_mm, hemi.radius_mm,
-                    chord_tol, decimals, f"{label}, {piece.id}", start_mm=current_table,
-                    end_mm=end_node if last else None)
-                labels.append((sum(len(p) for p in points), piece.id))
-                points.append(verts)
-                current_table = verts[-1]
-                deviation[piece.id] = max(deviation.get(piece.id, 0.0), dev)
-            body.append(PolylineMove(np.vstack(points), run_f, tuple(labels)))
+            limits = ChordLimits(radial_mm=chord_tol, curve_mm=curve_tol)
+            if corners is not None:
+                f_s = run_f / 60.0
+                limits = ChordLimits(chord_tol, curve_tol, corners.turn_limit_rad(f_s, accel, chord_tol),
+                                     corners.shortest_chord_mm(f_s))
+            chords = run_chords(run.curve, run.pieces, hemi.centre_mm, hemi.radius_mm, limits,
+                                decimals, label, start_mm=current_table, end_mm=end_node)
+            for piece, d, off in zip(run.pieces, chords.radial_mm, chords.curve_mm):
+                deviation[piece.id] = max(deviation.get(piece.id, 0.0), d)
+                from_curve[piece.id] = max(from_curve.get(piece.id, 0.0), off)
+            turns.append((chords.max_turn_rad, limits.turn_rad, chords.sharp_corners))
+            current_table = chords.points_mm[-1]
+            body.append(PolylineMove(chords.points_mm, run_f, chords.labels))
 
     layer = next(la for la in hemi.layers if la.name == path.base_layer)
     worst_um = max(deviation.values()) * 1e3
@@ -179,6 +187,7 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
               "traori": f"ball centre in the table frame, work offset {post.work_offset}, "
                         f"TRAORI on, rotary axes {' '.join(rot_names)} programmed with it",
               "machine": f"machine axis values {' '.join(kin.names)}, work offset must be zero"}
+    extra = ""
     if path_form == "spline":
         form = (f"path: B-spline degree {post.spline_degree}, uniform knots; max radial deviation "
                 f"from the sphere as emitted {worst_um:.4f} um (limit {post.spline_tolerance_um:g} um;"
@@ -186,6 +195,16 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
     else:
         form = (f"path: 3-D G1 chords; max radial deviation from the sphere as emitted "
                 f"{worst_um:.4f} um (tolerance {post.chord_tolerance_um:g} um, sagitta included)")
+        if from_curve:
+            extra = (f"chords from the planned curve at most "
+                     f"{max(from_curve.values()) * 1e3:.4f} um "
+                     f"(tolerance {post.chord_curve_tolerance_um:g} um)")
+        if turns and corners is not None:
+            worst, limit, sharp = max(turns)[0], min(t[1] for t in turns), sum(t[2] for t in turns)
+            extra += (f"; consecutive chords turn at most {math.degrees(worst):.3f} deg"
+                      + (f" ({sharp} corners above the {math.degrees(limit):.3f} deg the control "
+                         f"joins at the feed: it slows there)" if sharp else
+                         f" (the control joins up to {math.degrees(limit):.3f} deg at the feed)"))
     order = list(dict.fromkeys(path.segment_order()))
     what = (f"SDIT re-measure of layer {layer.name} sectors "
             f"{', '.join(dict.fromkeys(sid.split('-')[0] for sid in order))}" if path.remeasure
@@ -202,6 +221,7 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
                   if sec in {sid.split("-")[0] for sid in path.segment_order()})
         + f", dwell {test.dwell_s:g} s at every static node",
         form,
+        *((extra,) if path_form != "spline" and extra else ()),
         f"segments {order[0] if path.remeasure else layer.segments[0].id}.."
         f"{order[-1] if path.remeasure else layer.segments[-1].id}, passes "
         f"{' + '.join(test.passes)}, projection {test.projection}",

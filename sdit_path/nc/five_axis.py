@@ -161,20 +161,41 @@ def machine_spline(run: Run, track: AxisTrack, carry: float | None, centre: np.n
                     f"{tolerance_mm * 1e3:g} um of the sphere (best {max(devs) * 1e3:.4f} um)")
 
 
+def _curve_distance(q_of_t, kin: Kinematics, curve: BSplineCurve, u: np.ndarray,
+                    samples: int = 8) -> float:
+    """Largest distance (mm) of the ball, FK(q(t)) for ``t`` in ``[0, len(u) - 1]``, from
+    the planned curve: from the curve point at the same fraction of each chord's
+    parameter span, across the curve's tangent there (the along-path offset between
+    the two parametrisations is not a distance from the curve)."""
+    t = np.linspace(0.0, len(u) - 1.0, (len(u) - 1) * samples + 1)
+    i = np.clip(np.floor(t).astype(int), 0, len(u) - 2)
+    uu = u[i] + (u[i + 1] - u[i]) * (t - i)
+    p = kin.forward(q_of_t(t))
+    c = curve.evaluate(uu)
+    h = 1e-4 * (u[-1] - u[0])
+    lo, hi = curve.domain
+    tan = curve.evaluate(np.clip(uu + h, lo, hi)) - curve.evaluate(np.clip(uu - h, lo, hi))
+    tan /= np.linalg.norm(tan, axis=1)[:, None]
+    d = p - c
+    d -= np.einsum("ij,ij->i", d, tan)[:, None] * tan
+    return float(np.linalg.norm(d, axis=1).max())
+
+
 def machine_chords(run: Run, track: AxisTrack, carry: float | None, centre: np.ndarray,
                    radius: float, tolerance_mm: float, decimals: int, start_q: np.ndarray,
-                   label: str):
+                   label: str, curve_tolerance_mm: float = math.inf):
     """Vertices in machine axis space for straight joint-space moves.
 
     Returns ``(q (k, n_axes), table-frame chord lengths (k,), labels, per-piece
-    deviations, carry)``; the first vertex (``start_q``, the current position) is not
-    part of ``q``."""
+    deviations from the sphere, per-piece distances from the planned curve, carry)``;
+    the first vertex (``start_q``, the current position) is not part of ``q``."""
     kin = track.kin
     curve = run.curve
     chord = math.sqrt(8.0 * radius * tolerance_mm) * 0.9
     qs: list[np.ndarray] = []
     labels: list[tuple[int, str]] = []
     devs: list[float] = []
+    offs: list[float] = []
     current = start_q
     carry_now = carry
     for k, piece in enumerate(run.pieces):
@@ -195,18 +216,21 @@ def machine_chords(run: Run, track: AxisTrack, carry: float | None, centre: np.n
 
             dev = _fk_deviation(joint_path, kin, centre, radius, breaks, [(0.0, float(count))],
                                 samples=8)[0]
-            if dev <= tolerance_mm:
+            off = _curve_distance(joint_path, kin, curve, u)
+            if dev <= tolerance_mm and off <= curve_tolerance_mm:
                 break
             count = math.ceil(count * 1.25) + 1
         else:
             raise PlanError(f"{label}, {piece.id}: joint-space chords could not keep the ball "
-                            f"within {tolerance_mm * 1e3:g} um of the sphere")
+                            f"within {tolerance_mm * 1e3:g} um of the sphere and "
+                            f"{curve_tolerance_mm * 1e3:g} um of the planned curve")
         labels.append((sum(len(x) for x in qs), piece.id))
         qs.append(q[1:])
         devs.append(dev)
+        offs.append(off)
         current = q[-1]
         carry_now = carry_out
     q_all = np.vstack(qs)
     p_all = kin.forward(np.vstack([start_q[None, :], q_all]))
     lengths = np.linalg.norm(np.diff(p_all, axis=0), axis=1)
-    return q_all, lengths, tuple(labels), devs, carry_now
+    return q_all, lengths, tuple(labels), devs, offs, carry_now

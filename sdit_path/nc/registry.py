@@ -10,6 +10,7 @@ from typing import Protocol
 from ..config import Config, Reader
 from ..config.reader import short
 from ..errors import UnknownControllerError
+from .chords import CornerModel
 from .program import Program
 
 ENTRY_POINT_GROUP = "sdit_path.postprocessors"
@@ -28,6 +29,8 @@ class PostProcessor(Protocol):
     short: str  # a few characters for table headers
     extension: str
     path_form: str  # "spline" (native B-spline) or "chords" (3-D G1 chords)
+    #: for "chords": when the control joins two chords at the feed (None: any turn)
+    corners: CornerModel | None
 
     def render(self, program: Program) -> str: ...
 

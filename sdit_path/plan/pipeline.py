@@ -121,7 +121,8 @@ def post_layer(path: LayerPath, config: Config, hemi: Hemisphere,
                controller: str) -> PlannedProgram:
     """Build, render and lint one layer program; raises :class:`LintError` on failure."""
     post = get_postprocessor(controller)
-    built = build_program(path, config, hemi, controller, post.path_form, __version__)
+    built = build_program(path, config, hemi, controller, post.path_form, __version__,
+                          corners=getattr(post, "corners", None))
     text = post.render(built.program)
     file = f"{controller}/{built.program.name}{post.extension}"
     problems = post.lint(text, lint_limits(config, Kinematics(config.machine), built.program.frame))

@@ -1,0 +1,424 @@
+"""Our LinuxCNC programs run on LinuxCNC itself: its interpreter, its trajectory planner
+and its motion controller (Debian's ``linuxcnc-uspace``, headless, a simulated machine
+with the plan's axes and limits), the commanded position of every axis sampled every
+1 ms servo period, and compared with the plan's timed trajectory.
+
+    python validation/linuxcnc_run.py --plan DIR --program SDIT_E [--program ...]
+        [--json OUT] [--motion-dir DIR]
+    python validation/linuxcnc_run.py --plan DIR --all [--json OUT]
+
+Per run (the motion between two dwells at static nodes) it prints the control's
+duration and ours, the lowest speed while cruising over the feed, and how far the
+control's commanded path leaves the sphere and our planned curve; per program the
+cycle (the dwells follow the wall clock, 2 ms or so long each: the runs do not).
+
+How the control runs (facts of LinuxCNC 2.9 in POSIX non-realtime mode, checked here):
+``rtapi_app`` refuses to run as root without ``RTAPI_UID`` (a non-root uid it runs the
+real-time part as) and needs ``RTAPI_FIFO_PATH``, the path of its socket (not a
+folder), where that uid may create it; the servo thread is an ordinary 1 ms thread
+but motion advances exactly one servo period per tick, so the sampled motion is exact
+in control time; ``G4`` dwells follow the wall clock.  Only one LinuxCNC may run on a
+machine (its lock file ``/tmp/linuxcnc.lock``): the runner refuses to start while
+another holds it.  The display is a script of ours that resets the estop, switches the
+machine on, homes every joint where it stands, moves to the program's first pose by
+MDI, runs the program and waits until it has ended and the machine is in position.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+
+from sdit_path.machine.kinematics import Kinematics  # noqa: E402
+from sdit_path.plan.files import PlanFiles, load_plan  # noqa: E402
+
+LOCK = Path("/tmp/linuxcnc.lock")
+SERVO_S = 0.001
+#: the uid the real-time part runs as when we are root (Debian's ``nobody``)
+FALLBACK_UID = 65534
+
+DRIVER = r'''#!/usr/bin/python3
+"""The display of one run: estop reset, machine on, home in place, MDI to the first
+pose, run the program, wait until it has ended in position (exit 3 on any error the
+control reports)."""
+import os, subprocess, sys, time
+import linuxcnc
+
+# the sampler's FIFO holds every servo period since the HAL was loaded: read from now on
+sampler = subprocess.Popen(["halsampler", "-c", "0", "-t"],
+                           stdout=open(os.environ["SDIT_SAMPLES"], "w"))
+s, c, e = linuxcnc.stat(), linuxcnc.command(), linuxcnc.error_channel()
+
+
+def fail(msg):
+    print("SDIT-ERROR " + str(msg), flush=True)
+    sys.exit(3)
+
+
+def check():
+    err = e.poll()
+    if err:
+        fail(err[1])
+
+
+def settle(timeout):
+    end = time.time() + timeout
+    time.sleep(0.05)
+    while time.time() < end:
+        s.poll()
+        check()
+        if s.interp_state == linuxcnc.INTERP_IDLE and s.queue == 0 and s.inpos:
+            return
+        time.sleep(0.01)
+    fail("the control did not finish within %.0f s" % timeout)
+
+
+c.state(linuxcnc.STATE_ESTOP_RESET); c.wait_complete(10)
+c.state(linuxcnc.STATE_ON); c.wait_complete(10)
+c.mode(linuxcnc.MODE_MANUAL); c.wait_complete(10)
+c.teleop_enable(0); c.wait_complete(10)
+c.home(-1); c.wait_complete(10)
+end = time.time() + 20
+while True:
+    s.poll()
+    check()
+    if all(s.joint[j]["homed"] for j in range(s.joints)):
+        break
+    if time.time() > end:
+        fail("the joints did not home")
+    time.sleep(0.02)
+c.teleop_enable(1); c.wait_complete(10)
+c.mode(linuxcnc.MODE_MDI); c.wait_complete(10)
+c.mdi(os.environ["SDIT_FIRST_POSE"]); c.wait_complete(10)
+settle(120)
+c.mode(linuxcnc.MODE_AUTO); c.wait_complete(10)
+c.program_open(os.environ["SDIT_PROGRAM"]); c.wait_complete(10)
+c.auto(linuxcnc.AUTO_RUN, 0)
+settle(float(os.environ["SDIT_TIMEOUT_S"]))
+time.sleep(0.3)
+sampler.terminate()
+sampler.wait()
+print("SDIT-DONE", flush=True)
+'''
+
+
+@dataclass(frozen=True)
+class ControlRun:
+    """The control's motion from the program's first dwell on: ``t_s : (n,)`` control
+    time (0 at the first dwell's start), ``position : (n, m)`` the commanded axis values
+    in program coordinates (mm, deg), ``line : (n,)`` the program line executing."""
+
+    program: str
+    axes: tuple[str, ...]
+    t_s: np.ndarray
+    position: np.ndarray
+    line: np.ndarray
+
+
+def _ini(plan: PlanFiles, work: Path, axes: tuple[str, ...]) -> str:
+    m = plan.config.machine
+    lines = ["[EMC]", "VERSION = 1.1", "MACHINE = sdit-path-run", "DEBUG = 0",
+             "[DISPLAY]", f"DISPLAY = {work / 'drive.py'}", "CYCLE_TIME = 0.05",
+             "[TASK]", "TASK = milltask", "CYCLE_TIME = 0.001",
+             "[RS274NGC]", f"PARAMETER_FILE = {work / 'run.var'}",
+             "[EMCMOT]", "EMCMOT = motmod", "COMM_TIMEOUT = 1.0",
+             f"SERVO_PERIOD = {int(SERVO_S * 1e9)}",
+             "[EMCIO]", "EMCIO = io", "CYCLE_TIME = 0.100", f"TOOL_TABLE = {work / 'run.tbl'}",
+             "[HAL]", f"HALFILE = {work / 'run.hal'}",
+             "[TRAJ]", f"COORDINATES = {''.join(axes)}", "LINEAR_UNITS = mm",
+             "ANGULAR_UNITS = degree", "DEFAULT_LINEAR_VELOCITY = 10"]
+    lin = [m.axis(a) for a in axes if not m.axis(a).is_rotary]
+    lines += [f"MAX_LINEAR_VELOCITY = {max(a.max_velocity for a in lin):g}",
+              f"MAX_LINEAR_ACCELERATION = {max(a.max_acceleration for a in lin):g}"]
+    lines += ["[KINS]", f"JOINTS = {len(axes)}",
+              f"KINEMATICS = trivkins coordinates={''.join(axes)}"]
+    for j, name in enumerate(axes):
+        ax = m.axis(name)
+        lo, hi = (ax.to_display(v) for v in ax.travel)
+        # the sampled limits as the config gives them, in mm or deg
+        vel, acc = ax.to_display(ax.max_velocity), ax.to_display(ax.max_acceleration)
+        block = [f"MIN_LIMIT = {lo - 1:g}", f"MAX_LIMIT = {hi + 1:g}",
+                 f"MAX_VELOCITY = {vel:g}", f"MAX_ACCELERATION = {acc:g}"]
+        lines += [f"[AXIS_{name}]", *block,
+                  f"[JOINT_{j}]", f"TYPE = {'ANGULAR' if ax.is_rotary else 'LINEAR'}", *block,
+                  "HOME_SEQUENCE = 0", "HOME_SEARCH_VEL = 0", "HOME_LATCH_VEL = 0", "HOME = 0"]
+    return "\n".join(lines) + "\n"
+
+
+def _hal(axes: tuple[str, ...]) -> str:
+    n = len(axes)
+    lines = ["loadrt [KINS]KINEMATICS",
+             "loadrt [EMCMOT]EMCMOT servo_period_nsec=[EMCMOT]SERVO_PERIOD "
+             "num_joints=[KINS]JOINTS",
+             f"loadrt sampler depth=262144 cfg={'f' * n}s",
+             "addf motion-command-handler servo-thread",
+             "addf motion-controller servo-thread",
+             "addf sampler.0 servo-thread"]
+    lines += [f"net j{j} joint.{j}.motor-pos-cmd => joint.{j}.motor-pos-fb" for j in range(n)]
+    lines += [f"net s{j} axis.{a.lower()}.pos-cmd => sampler.0.pin.{j}"
+              for j, a in enumerate(axes)]
+    lines += [f"net line motion.program-line => sampler.0.pin.{n}",
+              "net estop-loop iocontrol.0.user-enable-out => iocontrol.0.emc-enable-in",
+              "net tool-prep-loop iocontrol.0.tool-prepare => iocontrol.0.tool-prepared",
+              "net tool-change-loop iocontrol.0.tool-change => iocontrol.0.tool-changed"]
+    return "\n".join(lines) + "\n"
+
+
+def _first_pose(text: str) -> str:
+    """The MDI move to the program's first programmed pose (its first G1)."""
+    for raw in text.splitlines():
+        line = raw.strip()
+        if line.startswith("G1 ") and " X" in f" {line}":
+            words = re.findall(r"([XYZABC])(-?\d+\.?\d*)", line)
+            return "G21 G90 G0 " + " ".join(f"{a}{v}" for a, v in words)
+    raise ValueError("no G1 move in the program")
+
+
+def run_text(plan: PlanFiles, text: str, axes: tuple[str, ...], work: Path,
+             timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Any program ``text`` run on the control as the machine of ``plan`` with the
+    coordinates ``axes``: every servo period's commanded position ``(n, m)`` (mm, deg)
+    and executing program line ``(n,)``, from the HAL's start."""
+    if LOCK.exists():
+        raise RuntimeError(f"another LinuxCNC runs here ({LOCK} exists); refusing to start")
+    if shutil.which("linuxcnc") is None:
+        raise RuntimeError("LinuxCNC is not installed (Debian's linuxcnc-uspace)")
+    work.mkdir(parents=True, exist_ok=True)
+    os.chmod(work, 0o777)  # the real-time part (RTAPI_UID) creates its socket here
+    (work / "program.ngc").write_text(text, encoding="utf-8")
+    for f in ("run.var", "run.tbl"):
+        (work / f).write_text("", encoding="utf-8")
+        os.chmod(work / f, 0o666)
+    (work / "run.ini").write_text(_ini(plan, work, axes), encoding="utf-8")
+    (work / "run.hal").write_text(_hal(axes), encoding="utf-8")
+    driver = work / "drive.py"
+    driver.write_text(DRIVER, encoding="utf-8")
+    driver.chmod(0o755)
+    samples = work / "samples.txt"
+    env = {**os.environ, "SDIT_PROGRAM": str(work / "program.ngc"),
+           "SDIT_FIRST_POSE": _first_pose(text), "SDIT_TIMEOUT_S": f"{timeout_s:.0f}",
+           "RTAPI_FIFO_PATH": str(work / "rtapi.fifo"), "SDIT_SAMPLES": str(samples)}
+    if os.geteuid() == 0:
+        env["RTAPI_UID"] = str(FALLBACK_UID)
+    proc = subprocess.Popen(["linuxcnc", "-r", str(work / "run.ini")], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=work)
+    try:
+        log, _ = proc.communicate(timeout=timeout_s + 120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    (work / "linuxcnc.log").write_text(log, encoding="utf-8")
+    if "SDIT-DONE" not in log:
+        why = re.search(r"SDIT-ERROR (.*)", log)
+        raise RuntimeError(f"the control did not run it: {why.group(1) if why else log[-800:]}")
+    data = np.loadtxt(samples)
+    if data.ndim != 2 or not len(data):
+        raise RuntimeError("no samples")
+    if np.any(np.diff(data[:, 0].astype(np.int64)) != 1):
+        raise RuntimeError("the sampler lost samples")
+    return data[:, 1:1 + len(axes)], data[:, 1 + len(axes)].astype(int)
+
+
+def program_axes(plan: PlanFiles, program: str) -> tuple[str, ...]:
+    """The coordinates ``program``'s LinuxCNC text moves: XYZ in the table frame, the
+    machine's axes otherwise."""
+    entry = next(p for p in plan.manifest["programs"]
+                 if p["name"] == program and p["controller"] == "linuxcnc")
+    if entry["frame"]["name"] == "table":
+        return ("X", "Y", "Z")
+    return tuple(plan.trajectory(program).axis_names)
+
+
+def run(plan: PlanFiles, program: str, work: Path, timeout_s: float | None = None
+        ) -> ControlRun:
+    """``program``'s LinuxCNC text run on the control (in ``work``, a folder of ours)."""
+    entry = next(p for p in plan.manifest["programs"]
+                 if p["name"] == program and p["controller"] == "linuxcnc")
+    text = (plan.directory / entry["file"]).read_text(encoding="utf-8")
+    axes = program_axes(plan, program)
+    limit = timeout_s or 3.0 * float(entry.get("cycle_time_s", 600.0)) + 60.0
+    position, line = run_text(plan, text, axes, work, limit)
+    # a dwell is the task's, not the motion's: the motion's program line is 0 until the
+    # first run after the first dwell moves; that sample is our first run's start
+    moved = np.flatnonzero(line > 0)
+    if not len(moved):
+        raise RuntimeError(f"{program}: the control never moved along the program")
+    traj = plan.trajectory(program)
+    first_run = float(traj.t_s[np.flatnonzero(traj.phase != "dwell")[0]])
+    k = max(0, moved[0] - int(round(first_run / SERVO_S)))
+    t = (np.arange(k, len(line)) - moved[0]) * SERVO_S + first_run
+    return ControlRun(program, axes, t, position[k:], line[k:])
+
+
+def write_motion(run_: ControlRun, path: Path) -> None:
+    """The control's motion as CSV: control time (s, 0 where our plan starts), every
+    axis' commanded value (mm, deg) per 1 ms servo period, the program line executing."""
+    cols = ["t_s", *(f"axis_{a}" for a in run_.axes), "line"]
+    rows = [",".join(cols)]
+    for t, p, ln in zip(run_.t_s, run_.position, run_.line):
+        rows.append(f"{t:.3f}," + ",".join(f"{v:.6f}" for v in p) + f",{int(ln)}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
+
+
+# ------------------------------------------------------------------------- comparing
+
+def _ball(plan: PlanFiles, run_: ControlRun, table_frame: bool) -> np.ndarray:
+    """The ball centre in the table frame at every sample."""
+    if table_frame:
+        return run_.position[:, :3]
+    kin = Kinematics(plan.config.machine)
+    q = np.zeros((len(run_.t_s), len(kin.names)))
+    for col, name in enumerate(run_.axes):
+        ax = kin.axes[kin.index[name]]
+        q[:, kin.index[name]] = np.radians(run_.position[:, col]) if ax.is_rotary else \
+            run_.position[:, col]
+    return kin.forward(q)
+
+
+def _stills(t: np.ndarray, p: np.ndarray, min_s: float) -> list[tuple[int, int]]:
+    """[start, end) index ranges where the commanded position does not change for at
+    least ``min_s``."""
+    moving = np.r_[True, np.any(np.abs(np.diff(p, axis=0)) > 1e-9, axis=1)]
+    out, k, n = [], 0, len(t)
+    while k < n:
+        if moving[k]:
+            k += 1
+            continue
+        j = k
+        while j < n and not moving[j]:
+            j += 1
+        if t[min(j, n - 1)] - t[k] >= min_s:
+            out.append((k - 1 if k else 0, j))
+        k = j
+    return out
+
+
+def _to_polyline(points: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Distance (mm) of every point ``q`` to the polyline ``points``."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(points)
+    _, i = tree.query(q)
+    best = np.full(len(q), np.inf)
+    for a, b in ((i - 1, i), (i, i + 1)):
+        a, b = np.clip(a, 0, len(points) - 1), np.clip(b, 0, len(points) - 1)
+        pa, pb = points[a], points[b]
+        d = pb - pa
+        L2 = np.maximum((d * d).sum(1), 1e-300)
+        u = np.clip(((q - pa) * d).sum(1) / L2, 0.0, 1.0)
+        best = np.minimum(best, np.linalg.norm(pa + u[:, None] * d - q, axis=1))
+    return best
+
+
+def compare(plan: PlanFiles, run_: ControlRun) -> dict:
+    """Run by run, the control's motion against the plan's timed trajectory."""
+    entry = next(p for p in plan.manifest["programs"]
+                 if p["name"] == run_.program and p["controller"] == "linuxcnc")
+    traj = plan.trajectory(run_.program)
+    cfg = plan.config
+    pivot, radius = np.array(cfg.ballbar.pivot_mm), cfg.ballbar.bar_length_mm
+    ball = _ball(plan, run_, entry["frame"]["name"] == "table")
+    dt = SERVO_S
+    speed = np.r_[0.0, np.linalg.norm(np.diff(ball, axis=0), axis=1) / dt]
+    # our runs: between dwells; the control's: between the standstills of the dwells
+    dwell = traj.phase == "dwell"
+    ours = []
+    edges = np.flatnonzero(np.diff(dwell.astype(int)))
+    starts, ends = edges[dwell[edges]] + 1, edges[~dwell[edges]] + 1  # run start, run end
+    for a in starts:
+        b = ends[ends > a]
+        if len(b):
+            ours.append((a, b[0]))
+    stills = _stills(run_.t_s, ball, min_s=0.5 * cfg.test.dwell_s)
+    theirs = [(s0[1], s1[0]) for s0, s1 in zip(stills, stills[1:])]
+    feed = cfg.test.feed_mm_per_min / 60.0
+    runs = []
+    for (a, b), (c, d) in zip(ours, theirs):
+        seg = str(traj.segment[(a + b) // 2])
+        ours_s, theirs_s = float(traj.t_s[b] - traj.t_s[a]), float(run_.t_s[d] - run_.t_s[c])
+        p = ball[c:d]
+        r = np.linalg.norm(p - pivot, axis=1) - radius
+        curve = _to_polyline(traj.ball_mm[a:b + 1], p)
+        v = speed[c:d]
+        own = float(np.max(traj.speed_mm_per_s[a:b])) if b > a else feed
+        # cruising: away from the stops by the distance the slowest ramp takes
+        cruise = v[(np.arange(len(v)) > 200) & (np.arange(len(v)) < len(v) - 200)]
+        runs.append({"segment": seg, "ours_s": ours_s, "control_s": theirs_s,
+                     "ratio": theirs_s / ours_s if ours_s > 0 else math.nan,
+                     "planned_speed_mm_s": own,
+                     "min_cruise_speed_mm_s": float(cruise.min()) if len(cruise) else math.nan,
+                     "max_from_sphere_um": float(np.max(np.abs(r)) * 1e3),
+                     "max_from_curve_um": float(np.max(curve) * 1e3)})
+    ours_cycle, theirs_cycle = float(traj.t_s[-1]), float(run_.t_s[stills[-1][1] - 1]) \
+        if stills else float(run_.t_s[-1])
+    motion_ours = sum(r["ours_s"] for r in runs)
+    motion_theirs = sum(r["control_s"] for r in runs)
+    return {"program": run_.program, "runs": runs,
+            "dwells_control": len(stills), "dwells_planned": len(ours) + 1,
+            "cycle_planned_s": ours_cycle, "cycle_control_s": theirs_cycle,
+            "motion_planned_s": motion_ours, "motion_control_s": motion_theirs,
+            "motion_ratio": motion_theirs / motion_ours if motion_ours else math.nan,
+            "max_from_sphere_um": max((r["max_from_sphere_um"] for r in runs), default=0.0),
+            "max_from_curve_um": max((r["max_from_curve_um"] for r in runs), default=0.0)}
+
+
+def print_comparison(c: dict) -> None:
+    print(f"{c['program']}: cycle control {c['cycle_control_s']:.2f} s, planned "
+          f"{c['cycle_planned_s']:.2f} s; motion control {c['motion_control_s']:.2f} s, planned "
+          f"{c['motion_planned_s']:.2f} s (ratio {c['motion_ratio']:.3f}); dwells "
+          f"{c['dwells_control']} of {c['dwells_planned']}; from the sphere at most "
+          f"{c['max_from_sphere_um']:.3f} um, from the planned curve "
+          f"{c['max_from_curve_um']:.3f} um")
+    print(f"  {'run':<10}{'planned s':>10}{'control s':>10}{'ratio':>8}{'feed mm/s':>10}"
+          f"{'min cruise':>11}{'sphere um':>10}{'curve um':>9}")
+    for r in c["runs"]:
+        print(f"  {r['segment']:<10}{r['ours_s']:>10.3f}{r['control_s']:>10.3f}"
+              f"{r['ratio']:>8.3f}{r['planned_speed_mm_s']:>10.2f}"
+              f"{r['min_cruise_speed_mm_s']:>11.2f}{r['max_from_sphere_um']:>10.3f}"
+              f"{r['max_from_curve_um']:>9.3f}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--plan", required=True, type=Path)
+    ap.add_argument("--program", action="append", default=[])
+    ap.add_argument("--all", action="store_true", help="every LinuxCNC program of the plan")
+    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--motion-dir", type=Path, default=None,
+                    help="keep each run's folder (the control's samples, its log) here")
+    a = ap.parse_args()
+    plan = load_plan(a.plan)
+    names = [p["name"] for p in plan.manifest["programs"] if p["controller"] == "linuxcnc"] \
+        if a.all else a.program
+    results = []
+    for name in names:
+        with tempfile.TemporaryDirectory(prefix="sdit-lcnc-") as tmp:
+            work = (a.motion_dir / name) if a.motion_dir else Path(tmp)
+            motion = run(plan, name, work)
+            c = compare(plan, motion)
+            if a.motion_dir:
+                write_motion(motion, a.motion_dir / f"{name}.motion.csv")
+        print_comparison(c)
+        results.append(c)
+        if a.json:
+            a.json.write_text(json.dumps(results, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
