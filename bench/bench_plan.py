@@ -15,13 +15,15 @@ from __future__ import annotations
 import sys
 import time
 
+import numpy as np
+
 from sdit_path import __version__
 from sdit_path.config import load_config
 from sdit_path.geometry.hemisphere import partition
 from sdit_path.geometry.paths import PathBuilder
 from sdit_path.interference.scene import Scene
 from sdit_path.machine.kinematics import Kinematics
-from sdit_path.nc.chords import chords_for_range
+from sdit_path.nc.chords import ChordLimits, run_chords
 from sdit_path.nc.words import count_blocks
 from sdit_path.plan.pipeline import check_layer, post_layer
 
@@ -68,14 +70,16 @@ def main(argv: list[str]) -> None:
     spline_blocks = sum(len(r.curve.control_points_mm) - 1 for p in paths for r in p.runs)
     # (the table-frame spline; 5-axis machine-axis programs are fitted separately)
     chord_blocks = 0
+    limits = ChordLimits(radial_mm=tol, curve_mm=cfg.post.chord_curve_tolerance_um * 1e-3)
     for p in paths:
         for r in p.runs:
-            for piece in r.pieces:
-                verts, _ = chords_for_range(r.curve, piece.u_start, piece.u_end, hemi.centre_mm,
-                                            hemi.radius_mm, tol, cfg.post.decimals, piece.id)
-                chord_blocks += len(verts)
+            start = np.asarray(r.curve.control_points_mm[0], dtype=float)
+            chords = run_chords(r.curve, r.pieces, hemi.centre_mm, hemi.radius_mm, limits,
+                                cfg.post.decimals, r.pieces[0].id, start_mm=start)
+            chord_blocks += len(chords.points_mm)
     print()
-    print(f"motion blocks at {tol * 1e3:g} um radial tolerance, whole hemisphere:")
+    print(f"motion blocks at {tol * 1e3:g} um radial tolerance (chords also within "
+          f"{cfg.post.chord_curve_tolerance_um:g} um of the curve), whole hemisphere:")
     print(f"  BSPLINE (SD={cfg.post.spline_degree}) {spline_blocks:>10}")
     print(f"  G1 polyline        {chord_blocks:>10}")
     print(f"  ratio BSPLINE / G1 {spline_blocks / chord_blocks:>10.4f}")
