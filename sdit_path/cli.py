@@ -163,7 +163,11 @@ def preview_command(config: str | None, out_dir: str, feed: float | None, force:
         _fail(exc)
         return
     if not quiet:
-        Console().print(f"wrote {len(files)} pictures to {out}/")
+        from .plan.preview import TIMING_TITLES
+
+        Console().print(f"wrote {len(files)} pictures to {out}/ (timing: "
+                        f"{TIMING_TITLES[cfg.timing.control]}, timing.control = "
+                        f"\"{cfg.timing.control}\")")
 
 
 def _in_range(name: str, value: float, lo: float, hi: float) -> None:

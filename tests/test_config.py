@@ -144,3 +144,15 @@ def test_a_sector_override_may_set_its_own_feed(default_text):
 def test_bad_sector_overrides_name_the_field(default_text, tables, message):
     with pytest.raises(ConfigError, match=message):
         parse_config(_with_overrides(default_text, *tables), "t.toml")
+
+
+def test_timing_control_chooses_whose_motion_the_plan_predicts(default_text):
+    assert parse_config(default_text, "t.toml").timing.control == "jerk_limited"
+    alone = edit(default_text, "controllers", '["linuxcnc"]')
+    cfg = parse_config(alone + '\n[timing]\ncontrol = "linuxcnc"\n', "t.toml")
+    assert cfg.timing.control == "linuxcnc"
+    with pytest.raises(ConfigError, match=r"timing.control: .*post.controllers must be "
+                                          r"\[\"linuxcnc\"\] alone"):
+        parse_config(default_text + '\n[timing]\ncontrol = "linuxcnc"\n', "t.toml")
+    with pytest.raises(ConfigError, match=r"timing.control.*jerk_limited, linuxcnc"):
+        parse_config(alone + '\n[timing]\ncontrol = "fanuc"\n', "t.toml")

@@ -4,8 +4,13 @@ with the plan's axes and limits), the commanded position of every axis sampled e
 1 ms servo period, and compared with the plan's timed trajectory.
 
     python validation/linuxcnc_run.py --plan DIR --program SDIT_E [--program ...]
-        [--json OUT] [--motion-dir DIR]
+        [--json OUT] [--motion-dir DIR [--reuse]]
     python validation/linuxcnc_run.py --plan DIR --all [--json OUT]
+    python validation/linuxcnc_run.py --plan DIR --plan DIR2 --all --motion-dir RUNS
+
+A second ``--plan`` (the same programs timed otherwise, ``timing.control``) is compared
+with the same motion; ``--reuse`` reads the runs kept in ``--motion-dir`` again instead
+of running the control.
 
 Per run (the motion between two dwells at static nodes) it prints the control's
 duration and ours, the lowest speed while cruising over the feed, and how far the
@@ -188,6 +193,20 @@ def _first_pose(text: str) -> str:
     raise ValueError("no G1 move in the program")
 
 
+def _remove_orphaned_segments() -> None:
+    """Shared memory a killed LinuxCNC left behind (HAL's and the sampler's keys, no
+    process attached): a sampler segment of another size makes the next run's sampler
+    fail to load."""
+    try:
+        table = subprocess.run(["ipcs", "-m"], capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return
+    for row in table.splitlines():
+        cols = row.split()
+        if len(cols) >= 6 and cols[0].lower().startswith(("0x4853", "0x4841")) and cols[5] == "0":
+            subprocess.run(["ipcrm", "-m", cols[1]], capture_output=True, check=False)
+
+
 def run_text(plan: PlanFiles, text: str, axes: tuple[str, ...], work: Path,
              timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
     """Any program ``text`` run on the control as the machine of ``plan`` with the
@@ -197,6 +216,7 @@ def run_text(plan: PlanFiles, text: str, axes: tuple[str, ...], work: Path,
         raise RuntimeError(f"another LinuxCNC runs here ({LOCK} exists); refusing to start")
     if shutil.which("linuxcnc") is None:
         raise RuntimeError("LinuxCNC is not installed (Debian's linuxcnc-uspace)")
+    _remove_orphaned_segments()
     work.mkdir(parents=True, exist_ok=True)
     os.chmod(work, 0o777)  # the real-time part (RTAPI_UID) creates its socket here
     (work / "program.ngc").write_text(text, encoding="utf-8")
@@ -209,19 +229,27 @@ def run_text(plan: PlanFiles, text: str, axes: tuple[str, ...], work: Path,
     driver.write_text(DRIVER, encoding="utf-8")
     driver.chmod(0o755)
     samples = work / "samples.txt"
+    # the socket's folder: one the real-time part's uid can reach (``work`` may sit
+    # under a folder only we may enter, as pytest's do)
+    sockets = Path(tempfile.mkdtemp(prefix="sdit-rtapi-"))
+    os.chmod(sockets, 0o777)
     env = {**os.environ, "SDIT_PROGRAM": str(work / "program.ngc"),
            "SDIT_FIRST_POSE": _first_pose(text), "SDIT_TIMEOUT_S": f"{timeout_s:.0f}",
-           "RTAPI_FIFO_PATH": str(work / "rtapi.fifo"), "SDIT_SAMPLES": str(samples)}
+           "RTAPI_FIFO_PATH": str(sockets / "rtapi.fifo"), "SDIT_SAMPLES": str(samples)}
     if os.geteuid() == 0:
         env["RTAPI_UID"] = str(FALLBACK_UID)
-    proc = subprocess.Popen(["linuxcnc", "-r", str(work / "run.ini")], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=work)
     try:
-        log, _ = proc.communicate(timeout=timeout_s + 120)
+        proc = subprocess.Popen(["linuxcnc", "-r", str(work / "run.ini")], env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                cwd=work)
+        try:
+            log, _ = proc.communicate(timeout=timeout_s + 120)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        shutil.rmtree(sockets, ignore_errors=True)
     (work / "linuxcnc.log").write_text(log, encoding="utf-8")
     if "SDIT-DONE" not in log:
         why = re.search(r"SDIT-ERROR (.*)", log)
@@ -253,6 +281,29 @@ def run(plan: PlanFiles, program: str, work: Path, timeout_s: float | None = Non
     axes = program_axes(plan, program)
     limit = timeout_s or 3.0 * float(entry.get("cycle_time_s", 600.0)) + 60.0
     position, line = run_text(plan, text, axes, work, limit)
+    return control_run(plan, program, position, line)
+
+
+def program_text(plan: PlanFiles, program: str) -> str:
+    entry = next(p for p in plan.manifest["programs"]
+                 if p["name"] == program and p["controller"] == "linuxcnc")
+    return (plan.directory / entry["file"]).read_text(encoding="utf-8")
+
+
+def kept(plan: PlanFiles, program: str, work: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The samples of a run kept in ``work`` (``--motion-dir``); it must have run the
+    plan's text of ``program``."""
+    if (work / "program.ngc").read_text(encoding="utf-8") != program_text(plan, program):
+        raise RuntimeError(f"{work}: the control ran another text than the plan's {program}")
+    axes = program_axes(plan, program)
+    data = np.loadtxt(work / "samples.txt")
+    return data[:, 1:1 + len(axes)], data[:, 1 + len(axes)].astype(int)
+
+
+def control_run(plan: PlanFiles, program: str, position: np.ndarray, line: np.ndarray
+                ) -> ControlRun:
+    """The control's samples of ``program`` on the plan's clock."""
+    axes = program_axes(plan, program)
     # a dwell is the task's, not the motion's: the motion's program line is 0 until the
     # first run after the first dwell moves; that sample is our first run's start
     moved = np.flatnonzero(line > 0)
@@ -389,35 +440,74 @@ def print_comparison(c: dict) -> None:
           f"{'min cruise':>11}{'sphere um':>10}{'curve um':>9}")
     for r in c["runs"]:
         print(f"  {r['segment']:<10}{r['ours_s']:>10.3f}{r['control_s']:>10.3f}"
-              f"{r['ratio']:>8.3f}{r['planned_speed_mm_s']:>10.2f}"
+              f"{r['ratio']:>8.4f}{r['planned_speed_mm_s']:>10.2f}"
               f"{r['min_cruise_speed_mm_s']:>11.2f}{r['max_from_sphere_um']:>10.3f}"
               f"{r['max_from_curve_um']:>9.3f}")
 
 
+def print_summary(results: list[dict]) -> None:
+    """Per plan compared: the worst run and the cycles."""
+    if not results:
+        return
+    worst = max((r for c in results for r in c["runs"]), key=lambda r: abs(r["ratio"] - 1.0))
+    cycles = [c["cycle_control_s"] / c["cycle_planned_s"] for c in results]
+    motions = [c["motion_ratio"] for c in results]
+    ratios = [r["ratio"] for c in results for r in c["runs"]]
+    print(f"  {len(results)} program(s): control / planned per run {min(ratios):.4f}.."
+          f"{max(ratios):.4f} (worst {worst['segment']}), motion {min(motions):.4f}.."
+          f"{max(motions):.4f}, cycle {min(cycles):.4f}..{max(cycles):.4f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--plan", required=True, type=Path)
+    ap.add_argument("--plan", required=True, type=Path, action="append",
+                    help="the plan whose programs run; again: further plans of the same "
+                         "program texts (another timing) compared with the same motion")
     ap.add_argument("--program", action="append", default=[])
     ap.add_argument("--all", action="store_true", help="every LinuxCNC program of the plan")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--motion-dir", type=Path, default=None,
                     help="keep each run's folder (the control's samples, its log) here")
+    ap.add_argument("--reuse", action="store_true",
+                    help="read the runs kept in --motion-dir instead of running the control")
     a = ap.parse_args()
-    plan = load_plan(a.plan)
+    if a.reuse and not a.motion_dir:
+        ap.error("--reuse reads the runs kept in --motion-dir: name it")
+    plans = [load_plan(p) for p in a.plan]
+    plan = plans[0]
     names = [p["name"] for p in plan.manifest["programs"] if p["controller"] == "linuxcnc"] \
         if a.all else a.program
-    results = []
+    if not names:
+        ap.error("name a --program or give --all")
+    results: dict[str, list[dict]] = {str(p): [] for p in a.plan}
     for name in names:
+        text = program_text(plan, name)
+        for path, other in zip(a.plan[1:], plans[1:]):
+            if program_text(other, name) != text:
+                raise SystemExit(f"{path}: its {name} is another text than {a.plan[0]}'s")
         with tempfile.TemporaryDirectory(prefix="sdit-lcnc-") as tmp:
             work = (a.motion_dir / name) if a.motion_dir else Path(tmp)
-            motion = run(plan, name, work)
-            c = compare(plan, motion)
-            if a.motion_dir:
+            if a.reuse:
+                position, line = kept(plan, name, work)
+            else:
+                entry = next(p for p in plan.manifest["programs"]
+                             if p["name"] == name and p["controller"] == "linuxcnc")
+                limit = 3.0 * float(entry.get("cycle_time_s") or 600.0) + 60.0
+                position, line = run_text(plan, text, program_axes(plan, name), work, limit)
+        for k, (path, other) in enumerate(zip(a.plan, plans)):
+            motion = control_run(other, name, position, line)
+            if k == 0 and a.motion_dir and not a.reuse:
                 write_motion(motion, a.motion_dir / f"{name}.motion.csv")
-        print_comparison(c)
-        results.append(c)
+            if len(plans) > 1:
+                print(f"[{path}, timing.control = {other.config.timing.control}]")
+            c = compare(other, motion)
+            print_comparison(c)
+            results[str(path)].append(c)
         if a.json:
             a.json.write_text(json.dumps(results, indent=1) + "\n")
+    for path, other in zip(a.plan, plans):
+        print(f"summary [{path}, timing.control = {other.config.timing.control}]")
+        print_summary(results[str(path)])
 
 
 if __name__ == "__main__":

@@ -19,6 +19,7 @@ TILT_OFFSET_MAX_DEG = 30.0
 CREST_RANGE = (0.3, 0.7)
 SHAPES = ("box", "cylinder", "capsule", "sphere", "mesh")
 FIVE_AXIS_MODES = ("traori", "machine")
+TIMING_CONTROLS = ("jerk_limited", "linuxcnc")
 #: Default direction of an axis by name and by the branch carrying it.
 DEFAULT_DIRECTION = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0),
                       "A": (1.0, 0.0, 0.0), "B": (0.0, 1.0, 0.0), "C": (0.0, 0.0, 1.0)}
@@ -235,10 +236,15 @@ class CheckConfig:
 
 @dataclass(frozen=True, slots=True)
 class TimingConfig:
-    """Trajectory export: ``sample_rate_hz`` of ``DIR/trajectories/<program>.csv.gz``."""
+    """Trajectory export: ``sample_rate_hz`` of ``DIR/trajectories/<program>.csv.gz``;
+    ``control``: whose motion the plan's timing predicts: ``jerk_limited`` (ours, under
+    the axes' velocity, acceleration and jerk limits: what a jerk-limited control such
+    as the 840D runs) or ``linuxcnc`` (what LinuxCNC 2.9's planner does with our
+    LinuxCNC program)."""
 
     sample_rate_hz: float
     export_trajectories: bool
+    control: str = "jerk_limited"
 
 
 @dataclass(frozen=True, slots=True)

@@ -17,7 +17,7 @@ import tomllib
 from pathlib import Path
 
 from ..errors import ConfigError
-from .model import (AXIS_NAMES, CREST_RANGE, FIVE_AXIS_MODES, PASSES, PROJECTIONS, SCHEDULES,
+from .model import (AXIS_NAMES, CREST_RANGE, FIVE_AXIS_MODES, TIMING_CONTROLS, PASSES, PROJECTIONS, SCHEDULES,
                     SHAPES, TILT_OFFSET_MAX_DEG, TRANSITS, Axis, BallbarConfig, CheckConfig, Config,
                     CurveConfig, DEFAULT_DIRECTION, MachineConfig, PostConfig, RotaryConfig,
                     SceneConfig, ScenePart, SectorCurve, TestConfig, TimingConfig)
@@ -425,10 +425,17 @@ def parse_config(text: str, source: str = "<config>") -> Config:
     post = _post(r, root)
     check = _check(r, root)
     scene = _scene(r, root, machine)
-    tm = r.table(root, "timing", ("sample_rate_hz", "export_trajectories"), required=False)
+    tm = r.table(root, "timing", ("sample_rate_hz", "export_trajectories", "control"),
+                 required=False)
     timing = TimingConfig(
         sample_rate_hz=r.number(tm, "timing.sample_rate_hz", 1000.0, ge=10, le=5000, unit="Hz"),
-        export_trajectories=r.boolean(tm, "timing.export_trajectories", True))
+        export_trajectories=r.boolean(tm, "timing.export_trajectories", True),
+        control=r.string(tm, "timing.control", "jerk_limited", TIMING_CONTROLS))
+    if timing.control == "linuxcnc" and tuple(post.controllers) != ("linuxcnc",):
+        raise r.fail("timing.control", "\"linuxcnc\" times the plan as LinuxCNC runs its "
+                                       "program: post.controllers must be [\"linuxcnc\"] "
+                                       f"alone, got {list(post.controllers)} (another control "
+                                       "runs another timing: plan it with its own config)")
     return Config(source=source, machine=machine, ballbar=ballbar, test=test, post=post,
                   check=check, scene=scene, timing=timing, text=text)
 

@@ -21,6 +21,8 @@ from ..machine.poses import RunPoses, layer_poses
 from ..machine.reach import PieceCheck, Violation, reach_violations
 from ..nc.build import BuiltProgram, build_program
 from ..nc.registry import get_postprocessor
+from ..timing.control import control_layer
+from ..timing.linuxcnc_tp import ControlLimits, simulate, stretches
 from ..timing.trajectory import TimedLayer, Timer, sample
 from .configure import check_config
 from .trajectory_csv import to_csv
@@ -186,16 +188,54 @@ def plan(config: Config, on_step: Callable[[str], None] | None = None,
     if bad:
         raise _infeasible_message(bad)
     timer = Timer(config, kin)
-    layers = [LayerPlan(lp.path, lp.poses, lp.checks,
-                        timer.time_layer(lp.path) if lp.path.items else None) for lp in layers]
-    programs = []
+    timed_layers, programs = [], []
     for lp in layers:
+        posted = {}
         for controller in config.post.controllers:
             if lp.path.items:
-                programs.append(post_layer(lp.path, config, hemi, controller))
+                posted[controller] = post_layer(lp.path, config, hemi, controller)
+                programs.append(posted[controller])
             if on_step:
                 on_step(f"layer {lp.path.layer} posted for {controller}")
-    return PlanResult(config, hemi, tuple(layers), tuple(programs))
+        timed = timer.time_layer(lp.path) if lp.path.items else None
+        if timed is not None and config.timing.control == "linuxcnc":
+            timed = linuxcnc_timed(timed, posted["linuxcnc"], config, kin)
+        timed_layers.append(LayerPlan(lp.path, lp.poses, lp.checks, timed))
+    return PlanResult(config, hemi, tuple(timed_layers), tuple(programs))
+
+
+def linuxcnc_timed(timed: TimedLayer, program: PlannedProgram, config: Config,
+                   kin: Kinematics) -> TimedLayer:
+    """``timed`` as LinuxCNC 2.9 runs ``program`` (its LinuxCNC text): the planner's
+    model (:mod:`~sdit_path.timing.linuxcnc_tp`) moves through every stretch between
+    dwells, servo period by servo period, with the machine's axis limits as the
+    control's INI limits; the ball keeps to the planned paths at the control's pace."""
+    table = program.built.program.frame == "table"
+    axes = ("X", "Y", "Z") if table else tuple(kin.names)
+    limits = ControlLimits.from_machine(config.machine, axes)
+    rotary = np.array([not table and kin.axes[kin.index[a]].is_rotary for a in axes])
+    paths = []
+    try:
+        found = stretches(program.text, axes)
+    except ValueError as exc:
+        raise PlanError(f"{program.file}: the LinuxCNC timing model cannot read it: {exc}") from exc
+    for stretch in found:
+        sim = simulate(stretch, limits)
+        moving = np.flatnonzero(sim.moving)
+        if not len(moving):
+            continue
+        pos = np.vstack([sim.start[None, :], sim.position[moving[0]:moving[-1] + 1]])
+        if table:
+            paths.append(pos)
+            continue
+        q = np.zeros((len(pos), len(kin.names)))
+        for col, name in enumerate(axes):
+            q[:, kin.index[name]] = np.radians(pos[:, col]) if rotary[col] else pos[:, col]
+        paths.append(kin.forward(q))
+    try:
+        return control_layer(timed, paths, limits.servo_period_s)
+    except ValueError as exc:
+        raise PlanError(f"{program.file}: {exc}") from exc
 
 
 def step_count(config: Config) -> int:

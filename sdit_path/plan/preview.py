@@ -27,7 +27,8 @@ class LayerPreview:
 class Preview:
     """``layers`` in the plan's order; ``limits``: axis -> (velocity, acceleration, jerk)
     limits in mm or deg (per s, s^2, s^3); ``centre_mm``, ``radius_mm``, ``tracks_deg``
-    (elevations) and ``nodes`` ((id, position)) of the sphere; ``feed_mm_per_min``."""
+    (elevations) and ``nodes`` ((id, position)) of the sphere; ``feed_mm_per_min``;
+    ``timing``: whose motion the trajectories are (see :data:`TIMING_TITLES`)."""
 
     layers: tuple[LayerPreview, ...]
     limits: dict[str, tuple[float, float, float]]
@@ -36,6 +37,12 @@ class Preview:
     tracks_deg: tuple[float, ...]
     nodes: tuple[tuple[str, np.ndarray], ...]
     feed_mm_per_min: float
+    timing: str
+
+
+#: what each ``timing.control`` shows, in a few words for the pictures' titles
+TIMING_TITLES = {"jerk_limited": "our jerk-limited plan",
+                 "linuxcnc": "LinuxCNC 2.9 planner model"}
 
 
 def preview(result: PlanResult, rate_hz: float = 1000.0) -> Preview:
@@ -57,4 +64,5 @@ def preview(result: PlanResult, rate_hz: float = 1000.0) -> Preview:
                                    sample(lp.timed, timer, rate_hz)))
     return Preview(tuple(layers), limits, hemi.centre_mm, hemi.radius_mm,
                    tuple(float(np.degrees(t.elevation_rad)) for t in hemi.tracks),
-                   tuple((n.id, n.position_mm) for n in hemi.nodes), cfg.test.feed_mm_per_min)
+                   tuple((n.id, n.position_mm) for n in hemi.nodes), cfg.test.feed_mm_per_min,
+                   TIMING_TITLES[cfg.timing.control])

@@ -205,7 +205,8 @@ def preview_files(pv: Preview, on_step=None) -> dict[str, bytes]:
     feed = pv.feed_mm_per_min
     for lp in pv.layers:
         smp = lp.samples
-        title = (f"{lp.program} (layer {lp.layer}, F{feed:g}, cycle {lp.cycle_s:.1f} s)")
+        title = (f"{lp.program} (layer {lp.layer}, F{feed:g}, cycle {lp.cycle_s:.1f} s, "
+                 f"timing: {pv.timing})")
         files[f"{lp.program}_speed.png"] = speed_figure(smp, title, feed)
         files[f"{lp.program}_axes.png"] = axes_figure(smp, title, pv.limits)
         others = [v for k, v in layer_points.items() if k != lp.layer]

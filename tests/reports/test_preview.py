@@ -34,3 +34,25 @@ def test_preview_rejects_a_bad_feed(tmp_path):
     r = subprocess.run([sys.executable, "-m", "sdit_path", "preview", "--out", str(tmp_path / "x"),
                         "--feed", "-5"], capture_output=True, text=True)
     assert r.returncode == 2 and "--feed: expected a feed in [1, 1e6] mm/min" in r.stderr
+
+
+@pytest.mark.slow
+def test_preview_says_which_timing_it_shows(tmp_path):
+    """The pictures and the command name the timing model: ours or LinuxCNC's planner."""
+    text = (DATA / "golden_small.toml").read_text(encoding="utf-8")
+    text = text.replace('controllers = ["sinumerik840d", "linuxcnc"]', 'controllers = ["linuxcnc"]')
+    (tmp_path / "c").mkdir()
+    config = tmp_path / "c" / "golden_small.toml"
+    config.write_text(text + '\n[timing]\ncontrol = "linuxcnc"\n', encoding="utf-8")
+    r = subprocess.run([sys.executable, "-m", "sdit_path", "preview", str(config),
+                        "--out", str(tmp_path / "prev")], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    said = " ".join(r.stdout.split())  # rich wraps at the terminal's width
+    assert 'timing: LinuxCNC 2.9 planner model, timing.control = "linuxcnc"' in said
+
+    from sdit_path.config import load_config
+    from sdit_path.plan.pipeline import plan
+    from sdit_path.plan.preview import preview
+
+    assert preview(plan(load_config(config))).timing == "LinuxCNC 2.9 planner model"
+    assert preview(plan(load_config(DATA / "golden_small.toml"))).timing == "our jerk-limited plan"
