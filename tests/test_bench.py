@@ -77,3 +77,32 @@ def test_diagnosis_benchmark_names_what_was_hidden():
     # an effect counts as named where the finding names it, alone or with the partner
     # this recording cannot tell it from (a lag or a contour smoothing at one feed)
     assert hidden <= named, out
+
+
+def test_the_plan_holds_every_limit_at_every_instant():
+    """Exact derivatives of our 5-axis plan where it is hardest (the top layers, where C
+    turns fastest, timed along the axis path): no run over any axis' velocity,
+    acceleration or jerk limit, or the feed, by more than 1e-4 at any instant, the
+    knots of the spline included (one-sided there)."""
+    sample = str(BENCH.parent / "samples" / "bc_table_5axis.toml")
+    out = run("timing_exact_check.py", sample, "--feeds", "2000,5000", "--layers", "D,E")
+    over = re.findall(r"runs over a limit by more than 1e-4: (\d+), by more than 1 %: (\d+), "
+                      r"of (\d+)", out)
+    assert len(over) == 4, out
+    assert all(int(a) == 0 and int(b) == 0 for a, b, _ in over), out
+
+
+def test_the_jerk_limited_reference_is_feasible_and_meets_the_plan_where_the_feed_binds():
+    """The independent reference (an IPOPT transcription of the time-optimal jerk-limited
+    motion, re-checked exactly and stretched until strictly feasible) holds every limit,
+    and where the feed binds almost everywhere (layer E at F600) it and our plan agree
+    to 1 %.  Where they part is printed by ``bench/timing_optimum.py`` (docs/validation)."""
+    out = run("timing_optimum.py", str(BENCH.parent / "samples" / "vmc_3axis.toml"),
+              "--feeds", "600", "--layers", "E")
+    row = re.search(r"F600\s+E\s+([0-9.]+)\s+([0-9.]+)\s+([0-9.]+)\s+([0-9.]+) run .*?"
+                    r"([0-9.]+)\s+\d+/\d+", out)
+    assert row, out
+    plan_s, ref_s, ratio, worst, limit = (float(g) for g in row.groups())
+    assert limit <= 1.0 + 1e-6
+    assert 0.999 <= ratio <= 1.01 and worst <= 1.02
+    assert ref_s <= plan_s * 1.001

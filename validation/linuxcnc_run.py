@@ -7,10 +7,15 @@ with the plan's axes and limits), the commanded position of every axis sampled e
         [--json OUT] [--motion-dir DIR [--reuse]]
     python validation/linuxcnc_run.py --plan DIR --all [--json OUT]
     python validation/linuxcnc_run.py --plan DIR --plan DIR2 --all --motion-dir RUNS
+    python validation/linuxcnc_run.py --config samples/vmc_3axis.toml
+        --config samples/bc_table_5axis.toml --json validation/results/linuxcnc.json
+    python validation/linuxcnc_run.py --rescore validation/results/linuxcnc.json
 
 A second ``--plan`` (the same programs timed otherwise, ``timing.control``) is compared
-with the same motion; ``--reuse`` reads the runs kept in ``--motion-dir`` again instead
-of running the control.
+with the same motion; ``--config`` plans a config both ways itself (as it is, and
+LinuxCNC alone with ``timing.control = "linuxcnc"``) and runs every LinuxCNC program;
+``--reuse`` reads the runs kept in ``--motion-dir`` again instead of running the
+control; ``--rescore`` prints the campaign's table from its JSON.
 
 Per run (the motion between two dwells at static nodes) it prints the control's
 duration and ours, the lowest speed while cruising over the feed, and how far the
@@ -446,7 +451,7 @@ def print_comparison(c: dict) -> None:
 
 
 def print_summary(results: list[dict]) -> None:
-    """Per plan compared: the worst run and the cycles."""
+    """The worst run and the cycles of the programs compared with one plan."""
     if not results:
         return
     worst = max((r for c in results for r in c["runs"]), key=lambda r: abs(r["ratio"] - 1.0))
@@ -458,11 +463,67 @@ def print_summary(results: list[dict]) -> None:
           f"{max(motions):.4f}, cycle {min(cycles):.4f}..{max(cycles):.4f}")
 
 
+def table(results: dict[str, dict[str, list[dict]]]) -> None:
+    """The campaign's figures: per sample and timing, each program's cycle and motion on
+    the control against the plan, the runs' spread, the slowest cruise and the path's
+    distance from the sphere and the planned curve."""
+    print(f"{'program':<10}{'timing':<14}{'cycle ctl s':>12}{'planned s':>11}{'ratio':>8}"
+          f"{'motion':>8}{'runs min..max':>16}{'cruise':>8}{'sphere':>8}{'curve':>7}")
+    print(f"{'':<10}{'':<14}{'':>12}{'':>11}{'':>8}{'ratio':>8}{'':>16}{'mm/s':>8}"
+          f"{'um':>8}{'um':>7}")
+    for sample, timings in results.items():
+        print(f"{sample}:")
+        programs = [c["program"] for c in next(iter(timings.values()))]
+        for name in programs:
+            for timing, rows in timings.items():
+                c = next(c for c in rows if c["program"] == name)
+                ratios = [r["ratio"] for r in c["runs"]]
+                cruise = min((r["min_cruise_speed_mm_s"] for r in c["runs"]
+                              if not math.isnan(r["min_cruise_speed_mm_s"])), default=math.nan)
+                print(f"{name:<10}{timing:<14}{c['cycle_control_s']:>12.2f}"
+                      f"{c['cycle_planned_s']:>11.2f}"
+                      f"{c['cycle_control_s'] / c['cycle_planned_s']:>8.4f}"
+                      f"{c['motion_ratio']:>8.4f}{min(ratios):>8.4f}..{max(ratios):<6.4f}"
+                      f"{cruise:>8.2f}{c['max_from_sphere_um']:>8.3f}"
+                      f"{c['max_from_curve_um']:>7.3f}")
+
+
+def _variant(config: Path, folder: Path) -> Path:
+    """``config`` timed as LinuxCNC runs it: the same file name (the programs' headers
+    name it), LinuxCNC alone, ``timing.control = "linuxcnc"``."""
+    import tomllib
+
+    text = config.read_text(encoding="utf-8")
+    data = tomllib.loads(text)
+    if "timing" in data:
+        raise SystemExit(f"{config}: has a [timing] table; give a config without one")
+    listed = re.search(r'(?m)^controllers\s*=.*$', text)
+    if not listed:
+        raise SystemExit(f"{config}: no post.controllers line to replace")
+    folder.mkdir(parents=True, exist_ok=True)
+    out = folder / config.name
+    out.write_text(text[:listed.start()] + 'controllers = ["linuxcnc"]' + text[listed.end():]
+                   + '\n[timing]\ncontrol = "linuxcnc"\n', encoding="utf-8")
+    return out
+
+
+def _plan(config: Path, out: Path) -> Path:
+    subprocess.run([sys.executable, "-m", "sdit_path", "plan", str(config), "--out", str(out),
+                    "--force", "-q"], check=True)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--plan", required=True, type=Path, action="append",
-                    help="the plan whose programs run; again: further plans of the same "
-                         "program texts (another timing) compared with the same motion")
+    src = ap.add_mutually_exclusive_group(required=True)
+    src.add_argument("--plan", type=Path, action="append",
+                     help="the plan whose programs run; again: further plans of the same "
+                          "program texts (another timing) compared with the same motion")
+    src.add_argument("--config", type=Path, action="append",
+                     help="a sample or config: planned twice (as it is, and timed as "
+                          "LinuxCNC runs it), every LinuxCNC program run once and compared "
+                          "with both")
+    src.add_argument("--rescore", type=Path, help="print the table of a --json file again")
     ap.add_argument("--program", action="append", default=[])
     ap.add_argument("--all", action="store_true", help="every LinuxCNC program of the plan")
     ap.add_argument("--json", type=Path, default=None)
@@ -471,22 +532,52 @@ def main() -> None:
     ap.add_argument("--reuse", action="store_true",
                     help="read the runs kept in --motion-dir instead of running the control")
     a = ap.parse_args()
+    if a.rescore:
+        table(json.loads(a.rescore.read_text(encoding="utf-8")))
+        return
     if a.reuse and not a.motion_dir:
         ap.error("--reuse reads the runs kept in --motion-dir: name it")
-    plans = [load_plan(p) for p in a.plan]
+    results: dict[str, dict[str, list[dict]]] = {}
+    with tempfile.TemporaryDirectory(prefix="sdit-campaign-") as scratch:
+        if a.config:
+            groups = []
+            for k, config in enumerate(a.config):
+                base = Path(scratch) / f"{k}"
+                modelled = _plan(_variant(config, base / "variant"), base / "linuxcnc")
+                groups.append((config.stem, [modelled, _plan(config, base / "jerk")]))
+            everything = True
+        else:
+            groups = [(a.plan[0].name, a.plan)]
+            everything = a.all
+        for sample, paths in groups:
+            plans = [load_plan(p) for p in paths]
+            results[sample] = _compare_all(plans, everything, a, sample)
+            if a.json:
+                a.json.write_text(json.dumps(results, indent=1) + "\n")
+    for sample, timings in results.items():
+        for timing, rows in timings.items():
+            print(f"summary {sample}, timing.control = {timing}")
+            print_summary(rows)
+
+
+def _compare_all(plans: list[PlanFiles], everything: bool, a, sample: str
+                 ) -> dict[str, list[dict]]:
     plan = plans[0]
     names = [p["name"] for p in plan.manifest["programs"] if p["controller"] == "linuxcnc"] \
-        if a.all else a.program
+        if everything else a.program
     if not names:
-        ap.error("name a --program or give --all")
-    results: dict[str, list[dict]] = {str(p): [] for p in a.plan}
+        raise SystemExit("name a --program or give --all")
+    out: dict[str, list[dict]] = {p.config.timing.control: [] for p in plans}
+    if len(out) != len(plans):
+        raise SystemExit("the plans compared must differ in timing.control")
     for name in names:
         text = program_text(plan, name)
-        for path, other in zip(a.plan[1:], plans[1:]):
+        for other in plans[1:]:
             if program_text(other, name) != text:
-                raise SystemExit(f"{path}: its {name} is another text than {a.plan[0]}'s")
+                raise SystemExit(f"{other.directory}: its {name} is another text")
         with tempfile.TemporaryDirectory(prefix="sdit-lcnc-") as tmp:
-            work = (a.motion_dir / name) if a.motion_dir else Path(tmp)
+            folder = (a.motion_dir / sample) if a.motion_dir and a.config else a.motion_dir
+            work = (folder / name) if folder else Path(tmp)
             if a.reuse:
                 position, line = kept(plan, name, work)
             else:
@@ -494,20 +585,15 @@ def main() -> None:
                              if p["name"] == name and p["controller"] == "linuxcnc")
                 limit = 3.0 * float(entry.get("cycle_time_s") or 600.0) + 60.0
                 position, line = run_text(plan, text, program_axes(plan, name), work, limit)
-        for k, (path, other) in enumerate(zip(a.plan, plans)):
+        for k, other in enumerate(plans):
             motion = control_run(other, name, position, line)
-            if k == 0 and a.motion_dir and not a.reuse:
-                write_motion(motion, a.motion_dir / f"{name}.motion.csv")
-            if len(plans) > 1:
-                print(f"[{path}, timing.control = {other.config.timing.control}]")
+            if k == 0 and folder and not a.reuse:
+                write_motion(motion, folder / f"{name}.motion.csv")
+            print(f"[{sample}, timing.control = {other.config.timing.control}]")
             c = compare(other, motion)
             print_comparison(c)
-            results[str(path)].append(c)
-        if a.json:
-            a.json.write_text(json.dumps(results, indent=1) + "\n")
-    for path, other in zip(a.plan, plans):
-        print(f"summary [{path}, timing.control = {other.config.timing.control}]")
-        print_summary(results[str(path)])
+            out[other.config.timing.control].append(c)
+    return out
 
 
 if __name__ == "__main__":

@@ -51,7 +51,14 @@ def _selfcheck(rows: list) -> None:
     perturb_selfcheck.summary(rows, 1500.0)
 
 
-SCORERS = {"blind": _blind, "analyse": _analyse, "selfcheck": _selfcheck}
+def _linuxcnc(results: dict) -> None:
+    import linuxcnc_run
+
+    linuxcnc_run.table(results)
+
+
+SCORERS = {"blind": _blind, "analyse": _analyse, "selfcheck": _selfcheck,
+           "linuxcnc": _linuxcnc}
 
 BLIND = ("How to read it: *named first*: the hidden effect is the diagnosis' first finding "
         "(or named with the partner the recording cannot tell it from), counted where it "
@@ -129,6 +136,30 @@ CAMPAIGNS = (
         "high-confidence finding; *offset error* includes each machine's following "
         "delay."),
      "selfcheck"),
+    (Campaign(
+        "LinuxCNC 2.9 runs our programs",
+        "linuxcnc.json",
+        "python validation/linuxcnc_run.py --config samples/vmc_3axis.toml --config "
+        "samples/bc_table_5axis.toml --json validation/results/linuxcnc.json",
+        "python validation/linuxcnc_run.py --rescore validation/results/linuxcnc.json",
+        "Every LinuxCNC program of both samples run by LinuxCNC itself (Debian's "
+        "linuxcnc-uspace 2.9: its interpreter, trajectory planner and motion controller, "
+        "headless, a machine with the sample's axis limits), its commanded position "
+        "sampled every 1 ms servo period, against the sample's plan timed two ways: "
+        "`jerk_limited` (our plan, what a jerk-limited control such as the 840D runs) and "
+        "`linuxcnc` (`timing.control = \"linuxcnc\"`: the model of LinuxCNC's planner, "
+        "`sdit_path/timing/linuxcnc_tp.py`). The program texts are the same.",
+        "How to read it: *cycle ctl* the control's cycle from the first dwell to the "
+        "last, *planned* the plan's, *ratio* theirs; the control's dwells follow the wall "
+        "clock (2.001-2.030 s for `G4 P2`), its motion the servo clock: *motion ratio* "
+        "compares the time spent moving; *runs* the spread of control / planned over the "
+        "runs between dwells; *cruise* the lowest path speed between a run's ramps; "
+        "*sphere* and *curve* the control's commanded path's largest distance from the "
+        "sphere and from the planned curve. On the 5-axis machine LinuxCNC 2.9 never "
+        "blends a block that moves a rotary axis tangentially: every such block is "
+        "planned to stop at its end, and the runs crawl; the `linuxcnc` timing predicts "
+        "it."),
+     "linuxcnc"),
 )
 
 

@@ -20,7 +20,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import BSpline, make_interp_spline
+from scipy.interpolate import BPoly, BSpline, make_interp_spline, make_lsq_spline
 
 from ..config import Config
 from ..fixed_point import round_to_decimals
@@ -56,7 +56,14 @@ class RunGeometry:
         self.run = run
         self.curve = curve
         self.length_mm = float(s[-1])
-        self._u_of_s = make_interp_spline(s, u, k=5)
+        # u(s) from its exact first two derivatives at every sample (quintic Hermite):
+        # an interpolant through the values alone rings in its third derivative where
+        # the spline's knots make u''' jump, and the jerk of every axis follows u'''
+        second = BSpline(curve.knots, curve.control_points_mm, curve.degree).derivative(2)
+        d1, d2 = deriv(u), second(u)
+        speed = np.linalg.norm(d1, axis=1)
+        ddu = -np.einsum("ij,ij->i", d1, d2) / speed ** 4
+        self._u_of_s = BPoly.from_derivatives(s, np.column_stack([u, 1.0 / speed, ddu]))
         self._s_of_u = make_interp_spline(u, s, k=5)
 
     def u(self, s: np.ndarray) -> np.ndarray:
@@ -107,6 +114,59 @@ class RunParameter:
         if self._ds is None:
             return np.ones_like(np.asarray(sigma, dtype=float))
         return self._ds(np.clip(sigma, 0.0, self.length_mm))
+
+
+def _smooth_map(x: np.ndarray, y: np.ndarray, knot_mm: float) -> BSpline:
+    """A quintic ``y(x)`` through the ends of the samples, fitted to the rest by least
+    squares with interior knots about ``knot_mm`` apart.  An interpolant through every
+    sample would follow the summation's rounding (1e-12 mm every 5 um), and its third
+    derivative, which the jerk of every axis follows, would swing by orders of
+    magnitude between samples; the fit keeps the map's shape on the scale of its knots
+    and a third derivative of its own."""
+    count = max(1, round(float(x[-1] - x[0]) / knot_mm))
+    inner = np.linspace(x[0], x[-1], count + 1)[1:-1]
+    if len(x) < len(inner) + 12:
+        return make_interp_spline(x, y, k=5)
+    knots = np.r_[[x[0]] * 6, inner, [x[-1]] * 6]
+    w = np.ones(len(x))
+    w[[0, -1]] = 1e6  # through the run's ends
+    fit = make_lsq_spline(x, y, knots, k=5, w=w)
+    if np.any(fit.derivative()(x) <= 0.0):  # a map must move forward
+        return make_interp_spline(x, y, k=5)
+    return fit
+
+
+def _inside(d1: np.ndarray, d2: np.ndarray, d3: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Derivatives from :func:`axis_derivatives` on one knot interval, with the values
+    at its ends that rest on one-sided differences (the first and last two of the
+    second, three of the third) extrapolated linearly from the central ones next to
+    them: the one-sided ones fall short where the third derivative, just past a knot,
+    changes fastest (by 5 % at a crest of the 5-axis sample)."""
+    n = len(d3)
+    if n < 10:
+        return d1, d2, d3
+    d2, d3 = d2.copy(), d3.copy()
+    for d, k in ((d2, 2), (d3, 3)):
+        steps = np.arange(k, 0, -1)[:, None]
+        d[:k] = d[k] + steps * (d[k] - d[k + 1])
+        d[n - k:] = d[n - 1 - k] + steps[::-1] * (d[n - 1 - k] - d[n - 2 - k])
+    return d1, d2, d3
+
+
+def _knots_along(geo: RunGeometry, param: RunParameter) -> np.ndarray:
+    """The spline's knots as values of ``param`` (0 and its length at the ends)."""
+    s_knots = np.clip(geo.s(geo.curve.interval_knots), 0.0, geo.length_mm)
+    if param.identity:
+        x = s_knots
+    else:
+        grid = np.linspace(0.0, param.length_mm, 4097)
+        x = np.interp(s_knots, param.s(grid), grid)
+        for _ in range(3):  # Newton on s(x) = s_knot
+            x = np.clip(x - (param.s(x) - s_knots) / param.ds(x), 0.0, param.length_mm)
+    x = np.r_[0.0, x[1:-1], param.length_mm]
+    keep = np.r_[True, np.diff(x) > 1e-9]
+    return x[keep]
 
 
 def axis_derivatives(q: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -197,8 +257,11 @@ class Timer:
         return self.kin.inverse(points, angles), carry_out
 
     def parameter(self, geo: RunGeometry, carry: float | None, step_mm: float = 0.005,
-                  per_knot: int = 64) -> RunParameter:
-        """The :class:`RunParameter` of a run (the identity without rotary axes)."""
+                  per_knot: int = 64, knot_mm: float = 0.5) -> RunParameter:
+        """The :class:`RunParameter` of a run (the identity without rotary axes): the
+        axis path's arc length summed on a grid of at most ``step_mm``, and the ball's
+        arc length over it fitted by least squares with knots about ``knot_mm`` apart
+        (:func:`_smooth_map`)."""
         if self._weights is None:
             return RunParameter(geo.length_mm)
         intervals = len(geo.curve.interval_knots) - 1
@@ -210,21 +273,28 @@ class Timer:
                            axis=1)
         sigma = np.concatenate([[0.0], np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(s))])
         sigma *= geo.length_mm / sigma[-1]  # as long as the ball's path: same windows
-        return RunParameter(geo.length_mm, make_interp_spline(sigma, s, k=5))
+        return RunParameter(geo.length_mm, _smooth_map(sigma, s, knot_mm))
 
     def run_windows(self, geo: RunGeometry, carry: float | None,
                     param: RunParameter | None = None, step_mm: float = 0.1,
-                    window_mm: float = 2.0, per_knot: int = 16, feed: float | None = None
+                    window_mm: float = 2.0, per_knot: int = 16, feed: float | None = None,
+                    axis_path_step_mm: float = 0.005
                     ) -> tuple[list[tuple[float, Budget]], float | None]:
         """The run cut into windows of about ``window_mm`` of its parameter (``param``,
         by default the ball's arc length), each with its own budget (from the axis
         derivatives inside it); neighbours with the same budget merge.
 
         The derivatives are taken on a grid of at most ``step_mm`` and at least
-        ``per_knot`` points per knot interval: the fit puts its knots densest where the
-        curve turns tightest, and a coarser grid would average the largest third
-        derivatives away (a crest of a fraction of a millimetre's radius is under-read by
-        half, and its jerk limit broken; hard case: test-axis-limits-seed2).  The
+        ``per_knot`` points per knot interval, each interval on its own: the fit puts its
+        knots densest where the curve turns tightest, and a coarser grid would average
+        the largest third derivatives away (a crest of a fraction of a millimetre's
+        radius is under-read by half, and its jerk limit broken; hard case:
+        test-axis-limits-seed2); differences across a knot would average the two values
+        the third derivative takes there.  Along an axis path the grid is at most
+        ``axis_path_step_mm``: next to a knot the rotary axes' third derivative along it
+        rises and falls within a tenth of a millimetre (the map from the ball's arc
+        length is smooth, the path's own derivatives are not), which the differences on
+        a coarser grid average away (the jerk of C was 2.2 times its limit there).  The
         feed caps the parameter's speed at ``feed / max ds/dsigma`` in each window,
         with the largest step of ``ds/dsigma`` between grid points added so that the
         ball keeps within the feed between them too.  ``feed``: the run's own (mm/s;
@@ -232,19 +302,28 @@ class Timer:
         feed = self.feed if feed is None else feed
         param = param or RunParameter(geo.length_mm)
         length = param.length_mm
-        intervals = len(geo.curve.interval_knots) - 1
-        step = min(step_mm, length / (intervals * per_knot))
-        n = max(64, math.ceil(length / step))
-        x = np.linspace(0.0, length, n + 1)
-        h = x[1] - x[0]
+        breaks = _knots_along(geo, param)
+        step = step_mm if param.identity else min(step_mm, axis_path_step_mm)
+        counts = np.maximum(per_knot, np.ceil(np.diff(breaks) / step)).astype(int)
+        # every knot interval on its own grid, its ends included: the derivatives are
+        # taken inside it (one-sided at its ends), so q''' keeps the values on either
+        # side of a knot, where the spline's third derivative jumps
+        x = np.concatenate([np.linspace(a, b, c + 1) for a, b, c in
+                            zip(breaks[:-1], breaks[1:], counts)])
         q, carry_out = self.axis_values(geo.points(param.s(x)), carry)
-        d1, d2, d3 = axis_derivatives(q, h)
+        d1, d2, d3 = (np.empty_like(q) for _ in range(3))
+        first = 0
+        for a, b, c in zip(breaks[:-1], breaks[1:], counts):
+            sl = slice(first, first + c + 1)
+            d1[sl], d2[sl], d3[sl] = _inside(*axis_derivatives(q[sl], (b - a) / c))
+            first += c + 1
         ds = param.ds(x)
         count = max(1, round(length / window_mm))
-        edges = np.linspace(0, n, count + 1).round().astype(int)
+        edges = np.searchsorted(x, np.linspace(0.0, length, count + 1))
+        edges[-1] = len(x) - 1
         windows: list[tuple[float, Budget]] = []
         for a, b in zip(edges[:-1], edges[1:]):
-            sl = slice(max(a - 1, 0), min(b + 2, n + 1))  # one grid point of overlap
+            sl = slice(max(a - 1, 0), min(b + 2, len(x)))  # one grid point of overlap
             ball_per_param = ds[sl].max() + np.abs(np.diff(ds[sl])).max(initial=0.0)
             bud = budget(d1[sl], d2[sl], d3[sl], self.v_lim, self.a_lim, self.j_lim,
                          self.kin.names, feed / ball_per_param)
