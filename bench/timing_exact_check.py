@@ -34,6 +34,7 @@ the samples) would add C1 joins that are not treated as knots.
 
     python bench/timing_exact_check.py [CONFIG] [--feeds 600,2000,5000] [--layers A,B]
                                       [--json OUT] [--accuracy]
+    python bench/timing_exact_check.py --rescore OUT
 """
 
 from __future__ import annotations
@@ -458,10 +459,15 @@ def main() -> None:
     ap.add_argument("--feeds", default="600,2000,5000")
     ap.add_argument("--layers", default="", help="only these layers, e.g. D,E (default: all)")
     ap.add_argument("--runs", type=int, default=0, help="only the first N runs of a layer")
+    ap.add_argument("--rescore", default="", help="print the summary of a --json file again")
     ap.add_argument("--json", default="", help="write the results here")
     ap.add_argument("--accuracy", action="store_true",
                     help="print the jerk ratio's change from h to 2h on each layer's first run")
     args = ap.parse_args()
+    if args.rescore:
+        with open(args.rescore) as fh:
+            summary(json.load(fh))
+        return
     base = load_config(args.config)
     print(f"timing_exact_check: {base.source}; largest ratio to its limit over every instant "
           f"of our plan (exact derivatives, one-sided at knots and joins)")
@@ -494,6 +500,19 @@ def main() -> None:
     if args.json:
         with open(args.json, "w") as fh:
             json.dump({"config": str(base.source), "layers": out}, fh, indent=1)
+
+
+def summary(data: dict) -> None:
+    """Per layer and feed of a ``--json`` file: the largest ratio to its limit of each
+    kind over every instant of the plan, and the runs over a limit."""
+    print(f"{data['config']}: largest ratio to the limit over every instant (exact)")
+    print(f"  {'feed':<6} {'layer':<5}" + "".join(f"{k:>13}" for k in KINDS)
+          + f"{'runs over 1e-4':>16}")
+    for la in data["layers"]:
+        worst = {k: max(r["worst"][k]["ratio"] for r in la["runs"]) for k in KINDS}
+        over = sum(max(w["ratio"] for w in r["worst"].values()) > 1 + 1e-4 for r in la["runs"])
+        print(f"  F{la['feed_mm_per_min']:<5g} {la['layer']:<5}"
+              + "".join(f"{worst[k]:13.5f}" for k in KINDS) + f"{over:>10d} of {len(la['runs'])}")
 
 
 if __name__ == "__main__":

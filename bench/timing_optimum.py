@@ -39,6 +39,7 @@ profile (mirrored where reversed) checked again on every run it serves.
 
     python bench/timing_optimum.py [CONFIG] [--feeds 600,2000,5000] [--layers A,B]
                                    [--runs N] [--json OUT] [--cell 0.1]
+    python bench/timing_optimum.py --rescore OUT
 """
 
 from __future__ import annotations
@@ -404,8 +405,13 @@ def main() -> None:
     ap.add_argument("--layers", default="", help="only these layers, e.g. D,E (default: all)")
     ap.add_argument("--runs", type=int, default=0, help="only the first N runs of a layer")
     ap.add_argument("--cell", type=float, default=0.1, help="largest cell, mm of ball path")
+    ap.add_argument("--rescore", default="", help="print the summary of a --json file again")
     ap.add_argument("--json", default="", help="write every run's figures here")
     args = ap.parse_args()
+    if args.rescore:
+        with open(args.rescore) as fh:
+            summary(json.load(fh))
+        return
     base = load_config(args.config)
     print(f"timing_optimum: {base.source}; motion time of our plan against a strictly "
           f"feasible jerk-limited reference (IPOPT, cells <= {args.cell:g} mm, re-checked "
@@ -442,6 +448,19 @@ def main() -> None:
         with open(args.json, "w") as fh:
             json.dump({"config": str(base.source), "cell_mm": args.cell, "layers": out}, fh,
                       indent=1)
+
+
+def summary(data: dict) -> None:
+    """Per layer and feed of a ``--json`` file: our plan, the reference, their ratio and
+    the worst run's."""
+    print(f"{data['config']}: motion time of our plan / the jerk-limited reference")
+    print(f"  {'feed':<6} {'layer':<5} {'plan s':>8} {'ref s':>8} {'ratio':>6}  {'worst run':>20}")
+    for la in data["layers"]:
+        runs = la["runs"]
+        w = max(runs, key=lambda r: r["plan_s"] / r["reference_s"])
+        print(f"  F{la['feed_mm_per_min']:<5g} {la['layer']:<5} {la['plan_s']:8.2f} "
+              f"{la['reference_s']:8.2f} {la['plan_s'] / la['reference_s']:6.3f}  "
+              f"{w['plan_s'] / w['reference_s']:6.3f} {w['label']:<13}")
 
 
 if __name__ == "__main__":

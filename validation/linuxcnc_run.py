@@ -473,9 +473,10 @@ def table(results: dict[str, dict[str, list[dict]]]) -> None:
           f"{'um':>8}{'um':>7}")
     for sample, timings in results.items():
         print(f"{sample}:")
-        programs = [c["program"] for c in next(iter(timings.values()))]
+        plans = {k: v for k, v in timings.items() if k != "model"}
+        programs = [c["program"] for c in next(iter(plans.values()))]
         for name in programs:
-            for timing, rows in timings.items():
+            for timing, rows in plans.items():
                 c = next(c for c in rows if c["program"] == name)
                 ratios = [r["ratio"] for r in c["runs"]]
                 cruise = min((r["min_cruise_speed_mm_s"] for r in c["runs"]
@@ -486,6 +487,38 @@ def table(results: dict[str, dict[str, list[dict]]]) -> None:
                       f"{c['motion_ratio']:>8.4f}{min(ratios):>8.4f}..{max(ratios):<6.4f}"
                       f"{cruise:>8.2f}{c['max_from_sphere_um']:>8.3f}"
                       f"{c['max_from_curve_um']:>7.3f}")
+
+
+def _model_check(plan: PlanFiles, name: str, text: str, position: np.ndarray,
+                 line: np.ndarray) -> dict | None:
+    """Our model of LinuxCNC's planner (``timing.control = "linuxcnc"``) against the
+    control's samples of ``name``, stretch by stretch and period by period
+    (``linuxcnc_tp_check.check``), in brief."""
+    import linuxcnc_tp_check
+
+    from sdit_path.timing.linuxcnc_tp import ControlLimits
+
+    axes = program_axes(plan, name)
+    c = linuxcnc_tp_check.check(name, text, axes,
+                                ControlLimits.from_machine(plan.config.machine, axes),
+                                position, line)
+    rows = c["stretches"]
+    return {"program": name, "stretches": len(rows),
+            "motion_control_s": c["motion_control_s"], "motion_model_s": c["motion_model_s"],
+            "max_abs_diff_ms": max(abs(r["diff_ms"]) for r in rows),
+            "max_linear_um": max(r["max_linear_um"] for r in rows),
+            "max_rotary_mdeg": max(r["max_rotary_mdeg"] for r in rows)}
+
+
+def model_table(results: dict[str, dict[str, list[dict]]]) -> None:
+    """Per program: the model of LinuxCNC's planner against the control."""
+    print(f"{'program':<10}{'stretches':>10}{'motion ctl s':>14}{'model s':>10}"
+          f"{'|dt| ms':>9}{'position um':>13}{'rotary mdeg':>13}")
+    for sample, timings in results.items():
+        for m in timings.get("model", []):
+            print(f"{m['program']:<10}{m['stretches']:>10}{m['motion_control_s']:>14.3f}"
+                  f"{m['motion_model_s']:>10.3f}{m['max_abs_diff_ms']:>9.0f}"
+                  f"{m['max_linear_um']:>13.3f}{m['max_rotary_mdeg']:>13.3f}")
 
 
 def _variant(config: Path, folder: Path) -> Path:
@@ -533,7 +566,10 @@ def main() -> None:
                     help="read the runs kept in --motion-dir instead of running the control")
     a = ap.parse_args()
     if a.rescore:
-        table(json.loads(a.rescore.read_text(encoding="utf-8")))
+        results = json.loads(a.rescore.read_text(encoding="utf-8"))
+        table(results)
+        print()
+        model_table(results)
         return
     if a.reuse and not a.motion_dir:
         ap.error("--reuse reads the runs kept in --motion-dir: name it")
@@ -556,8 +592,9 @@ def main() -> None:
                 a.json.write_text(json.dumps(results, indent=1) + "\n")
     for sample, timings in results.items():
         for timing, rows in timings.items():
-            print(f"summary {sample}, timing.control = {timing}")
-            print_summary(rows)
+            if timing != "model":
+                print(f"summary {sample}, timing.control = {timing}")
+                print_summary(rows)
 
 
 def _compare_all(plans: list[PlanFiles], everything: bool, a, sample: str
@@ -585,6 +622,13 @@ def _compare_all(plans: list[PlanFiles], everything: bool, a, sample: str
                              if p["name"] == name and p["controller"] == "linuxcnc")
                 limit = 3.0 * float(entry.get("cycle_time_s") or 600.0) + 60.0
                 position, line = run_text(plan, text, program_axes(plan, name), work, limit)
+        model = _model_check(plan, name, text, position, line)
+        if model is not None:
+            print(f"[{sample}, the planner's model against the control, period by period] "
+                  f"motion {model['motion_model_s']:.3f} s against {model['motion_control_s']:.3f} s, "
+                  f"stretches within {model['max_abs_diff_ms']:.0f} ms, positions within "
+                  f"{model['max_linear_um']:.3f} um, {model['max_rotary_mdeg']:.3f} mdeg")
+            out.setdefault("model", []).append(model)
         for k, other in enumerate(plans):
             motion = control_run(other, name, position, line)
             if k == 0 and folder and not a.reuse:
