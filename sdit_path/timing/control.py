@@ -72,12 +72,15 @@ def control_layer(timed: TimedLayer, paths: Sequence[np.ndarray], period_s: floa
     program stops): where the stretch starts, then after each of the n_k servo periods
     from the first that moves to the last.  Every run and repositioning line keeps its
     geometry; its progress along it, and so its duration, follow the control; dwells
-    keep theirs.  A stretch of several items (the lines of a repositioning) is shared
-    out by the distance travelled."""
+    keep theirs.  Runs with no dwell between them (a pass turning back on itself) are one
+    stretch, as are the lines of a repositioning between its two program stops; such a
+    stretch is shared out by the distance travelled."""
     groups: list[list] = [[]]
     for item in timed.items:
         if isinstance(item, TimedDwell):
             groups.append([])
+        elif groups[-1] and isinstance(groups[-1][-1], TimedRun) != isinstance(item, TimedRun):
+            groups.append([item])  # a program stop between a run and repositioning lines
         else:
             groups[-1].append(item)
     groups = [g for g in groups if g]

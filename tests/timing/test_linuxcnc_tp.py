@@ -101,3 +101,24 @@ def test_a_linuxcnc_timed_plan_runs_as_the_model_runs_its_program(modelled):
         feed = cfg.test.feed_mm_per_min / 60.0
         assert smp.speed_mm_per_s.max() <= feed * (1 + 1e-3)
         assert math.isclose(smp.t_s[-1], round(lp.timed.duration_s, 3), abs_tol=1.5e-3)
+
+
+@pytest.mark.slow
+def test_program_stops_and_passes_that_turn_back_are_timed_as_the_control_runs_them():
+    """With segments left out (``--skip-infeasible`` on the collision sample) a layer has
+    program stops around each repositioning and passes that turn back without a dwell:
+    the stretches of the program, run through the model, are the plan's motion."""
+    text = (ROOT / "samples" / "vmc_3axis_collision.toml").read_text(encoding="utf-8")
+    text = text.replace('controllers = ["sinumerik840d", "linuxcnc"]', 'controllers = ["linuxcnc"]')
+    cfg = parse_config(text + '\n[timing]\ncontrol = "linuxcnc"\n', "vmc_3axis_collision.toml")
+    result = plan(cfg, skip_infeasible=True)
+    limits = ControlLimits.from_machine(cfg.machine, ("X", "Y", "Z"))
+    stops = 0
+    for lp in result.layers:
+        prog = next(p for p in result.programs if p.layer == lp.path.layer)
+        stops += prog.text.count("\nM0\n")
+        found = [simulate(s, limits).duration_s for s in stretches(prog.text, limits.axes)]
+        moving = sum(i.profile.duration_s for i in lp.timed.items
+                     if not isinstance(i, TimedDwell))
+        assert moving == pytest.approx(sum(found), abs=1e-9)
+    assert stops > 0
