@@ -20,7 +20,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import BPoly, BSpline, make_interp_spline, make_lsq_spline
+from scipy.interpolate import BSpline, PPoly, make_interp_spline, make_lsq_spline
 
 from ..config import Config
 from ..fixed_point import round_to_decimals
@@ -29,6 +29,20 @@ from ..machine.kinematics import Kinematics
 from ..machine.schedule import RotarySchedule
 from .limits import Budget, PathLimits, budget
 from .profile import PHASES, ChainProfile, Profile, plan_chain, plan_profile
+
+
+def quintic_hermite(x: np.ndarray, y: np.ndarray, dy: np.ndarray, ddy: np.ndarray) -> PPoly:
+    """The piecewise quintic through ``(x, y)`` with first and second derivatives
+    ``dy``, ``ddy`` at every sample (``x`` increasing): C2, exact where its data are."""
+    h = np.diff(x)
+    dy_ = np.diff(y)  # the step, not the values: no cancellation of large coordinates
+    d0, d1, c0, c1 = dy[:-1] * h, dy[1:] * h, ddy[:-1] * h * h, ddy[1:] * h * h
+    t = [y[:-1], d0, 0.5 * c0,
+         10 * dy_ - 6 * d0 - 4 * d1 - 1.5 * c0 + 0.5 * c1,
+         -15 * dy_ + 8 * d0 + 7 * d1 + 1.5 * c0 - c1,
+         6 * dy_ - 3 * d0 - 3 * d1 - 0.5 * c0 + 0.5 * c1]
+    coeffs = np.array([t[k] / h ** k for k in range(5, -1, -1)])
+    return PPoly(coeffs, x)
 
 
 class RunGeometry:
@@ -63,7 +77,7 @@ class RunGeometry:
         d1, d2 = deriv(u), second(u)
         speed = np.linalg.norm(d1, axis=1)
         ddu = -np.einsum("ij,ij->i", d1, d2) / speed ** 4
-        self._u_of_s = BPoly.from_derivatives(s, np.column_stack([u, 1.0 / speed, ddu]))
+        self._u_of_s = quintic_hermite(s, u, 1.0 / speed, ddu)
         self._s_of_u = make_interp_spline(u, s, k=5)
 
     def u(self, s: np.ndarray) -> np.ndarray:
