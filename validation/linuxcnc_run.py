@@ -277,18 +277,6 @@ def program_axes(plan: PlanFiles, program: str) -> tuple[str, ...]:
     return tuple(plan.trajectory(program).axis_names)
 
 
-def run(plan: PlanFiles, program: str, work: Path, timeout_s: float | None = None
-        ) -> ControlRun:
-    """``program``'s LinuxCNC text run on the control (in ``work``, a folder of ours)."""
-    entry = next(p for p in plan.manifest["programs"]
-                 if p["name"] == program and p["controller"] == "linuxcnc")
-    text = (plan.directory / entry["file"]).read_text(encoding="utf-8")
-    axes = program_axes(plan, program)
-    limit = timeout_s or 3.0 * float(entry.get("cycle_time_s", 600.0)) + 60.0
-    position, line = run_text(plan, text, axes, work, limit)
-    return control_run(plan, program, position, line)
-
-
 def program_text(plan: PlanFiles, program: str) -> str:
     entry = next(p for p in plan.manifest["programs"]
                  if p["name"] == program and p["controller"] == "linuxcnc")

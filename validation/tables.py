@@ -180,71 +180,50 @@ CAMPAIGNS = (
         "(um, mdeg for rotary axes); on one stretch of SDIT_D the control runs a fraction "
         "of a period behind the model throughout (5.8 um at 10 mm/s) and ends with it."),
      "linuxcnc"),
-    (Campaign(
-        "Every limit at every instant, vmc_3axis",
-        "timing_exact_vmc_3axis.json",
-        "python bench/timing_exact_check.py samples/vmc_3axis.toml --json "
-        "validation/results/timing_exact_vmc_3axis.json",
-        "python bench/timing_exact_check.py --rescore validation/results/timing_exact_vmc_3axis.json",
-        "Our plan (`timing.control = \"jerk_limited\"`) at F600, F2000 and F5000, every "
-        "run checked at every instant with exact derivatives: the phases of its ruckig "
-        "profiles themselves, the spline's pieces as polynomials (one-sided at a knot), "
-        "the maps between parameters differentiated analytically (`bench/timing_exact_check.py`).",
-        "How to read it: per layer and feed the largest ratio of each axis' velocity, "
-        "acceleration and jerk to its limit and of the ball's speed to the feed over every "
-        "instant of every run; *runs over 1e-4*: runs with any ratio above 1.0001."),
-     "exact"),
-    (Campaign(
-        "Every limit at every instant, bc_table_5axis",
-        "timing_exact_bc_table_5axis.json",
-        "python bench/timing_exact_check.py samples/bc_table_5axis.toml --json "
-        "validation/results/timing_exact_bc_table_5axis.json",
-        "python bench/timing_exact_check.py --rescore validation/results/timing_exact_bc_table_5axis.json",
-        "Our plan (`timing.control = \"jerk_limited\"`) at F600, F2000 and F5000, every "
-        "run checked at every instant with exact derivatives: the phases of its ruckig "
-        "profiles themselves, the spline's pieces as polynomials (one-sided at a knot), "
-        "the maps between parameters differentiated analytically (`bench/timing_exact_check.py`).",
-        "How to read it: per layer and feed the largest ratio of each axis' velocity, "
-        "acceleration and jerk to its limit and of the ball's speed to the feed over every "
-        "instant of every run; *runs over 1e-4*: runs with any ratio above 1.0001."),
-     "exact"),
-    (Campaign(
-        "Our timing against the jerk-limited optimum, vmc_3axis",
-        "timing_optimum_vmc_3axis.json",
-        "python bench/timing_optimum.py samples/vmc_3axis.toml --json "
-        "validation/results/timing_optimum_vmc_3axis.json",
-        "python bench/timing_optimum.py --rescore validation/results/timing_optimum_vmc_3axis.json",
-        "The motion time of our plan against an independent reference: the time-optimal "
-        "jerk-limited motion along the same path under the same limits, transcribed on "
-        "cells of at most 0.1 mm and solved by IPOPT (`bench/timing_optimum.py`), "
-        "re-checked with exact derivatives and stretched until strictly feasible: an upper "
-        "bound on the optimum, so *ratio* is a lower bound on what a better planner could "
-        "win.",
-        "How to read it: *ratio* plan / reference per layer; *worst run* the largest ratio "
-        "of a run (dwell to dwell) and its segments. The target is 1.03 per layer and 1.05 "
-        "per run; where it is missed (the top layers at F2000 and F5000, where the "
-        "curvature or a fast-turning table binds) our window-wise constant limits lose "
-        "to the reference's point-wise ones."),
-     "optimum"),
-    (Campaign(
-        "Our timing against the jerk-limited optimum, bc_table_5axis",
-        "timing_optimum_bc_table_5axis.json",
-        "python bench/timing_optimum.py samples/bc_table_5axis.toml --json "
-        "validation/results/timing_optimum_bc_table_5axis.json",
-        "python bench/timing_optimum.py --rescore validation/results/timing_optimum_bc_table_5axis.json",
-        "The motion time of our plan against an independent reference: the time-optimal "
-        "jerk-limited motion along the same path under the same limits, transcribed on "
-        "cells of at most 0.1 mm and solved by IPOPT (`bench/timing_optimum.py`), "
-        "re-checked with exact derivatives and stretched until strictly feasible: an upper "
-        "bound on the optimum, so *ratio* is a lower bound on what a better planner could "
-        "win.",
-        "How to read it: *ratio* plan / reference per layer; *worst run* the largest ratio "
-        "of a run (dwell to dwell) and its segments. The target is 1.03 per layer and 1.05 "
-        "per run; where it is missed (the top layers at F2000 and F5000, where the "
-        "curvature or a fast-turning table binds) our window-wise constant limits lose "
-        "to the reference's point-wise ones."),
-     "optimum"),
 )
+
+SAMPLES = ("vmc_3axis", "bc_table_5axis")
+
+EXACT = ("Our plan (`timing.control = \"jerk_limited\"`) at F600, F2000 and F5000, every "
+         "run checked at every instant with exact derivatives: the phases of its ruckig "
+         "profiles themselves, the spline's pieces as polynomials (one-sided at a knot), "
+         "the maps between parameters differentiated analytically "
+         "(`bench/timing_exact_check.py`).",
+         "How to read it: per layer and feed the largest ratio of each axis' velocity, "
+         "acceleration and jerk to its limit and of the ball's speed to the feed over "
+         "every instant of every run; *runs over 1e-4*: runs with any ratio above 1.0001.")
+
+OPTIMUM = ("The motion time of our plan against an independent reference: the time-optimal "
+           "jerk-limited motion along the same path under the same limits, transcribed on "
+           "cells of at most 0.1 mm and solved by IPOPT (`bench/timing_optimum.py`), "
+           "re-checked with exact derivatives and stretched until strictly feasible: an "
+           "upper bound on the optimum, so *ratio* is a lower bound on what a better "
+           "planner could win.",
+           "How to read it: *ratio* plan / reference per layer; *worst run* the largest "
+           "ratio of a run (dwell to dwell) and its segments. The target is 1.03 per layer "
+           "and 1.05 per run; where it is missed (the top layers at F2000 and F5000, where "
+           "the curvature or a fast-turning table binds) our window-wise constant limits "
+           "lose to the reference's point-wise ones.")
+
+
+def _bench_campaign(title: str, script: str, stem: str, sample: str, texts: tuple[str, str]
+                    ) -> Campaign:
+    """A benchmark of ``bench/`` run on a sample, its JSON under ``validation/results/``."""
+    results = f"{stem}_{sample}.json"
+    return Campaign(f"{title}, {sample}", results,
+                    f"python bench/{script} samples/{sample}.toml --json "
+                    f"validation/results/{results}",
+                    f"python bench/{script} --rescore validation/results/{results}", *texts)
+
+
+CAMPAIGNS += tuple(
+    (_bench_campaign(title, script, stem, sample, texts), kind)
+    for title, script, stem, texts, kind in (
+        ("Every limit at every instant", "timing_exact_check.py", "timing_exact", EXACT,
+         "exact"),
+        ("Our timing against the jerk-limited optimum", "timing_optimum.py",
+         "timing_optimum", OPTIMUM, "optimum"))
+    for sample in SAMPLES)
 
 
 def _para(text: str) -> str:

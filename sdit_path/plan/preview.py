@@ -28,7 +28,8 @@ class Preview:
     """``layers`` in the plan's order; ``limits``: axis -> (velocity, acceleration, jerk)
     limits in mm or deg (per s, s^2, s^3); ``centre_mm``, ``radius_mm``, ``tracks_deg``
     (elevations) and ``nodes`` ((id, position)) of the sphere; ``feed_mm_per_min``;
-    ``timing``: whose motion the trajectories are (see :data:`TIMING_TITLES`)."""
+    ``timing``: whose motion the trajectories are (see :data:`TIMING_TITLES`), ``note``
+    what their axis pictures need said (:data:`TIMING_NOTES`)."""
 
     layers: tuple[LayerPreview, ...]
     limits: dict[str, tuple[float, float, float]]
@@ -38,11 +39,21 @@ class Preview:
     nodes: tuple[tuple[str, np.ndarray], ...]
     feed_mm_per_min: float
     timing: str
+    note: str = ""
 
 
 #: what each ``timing.control`` shows, in a few words for the pictures' titles
 TIMING_TITLES = {"jerk_limited": "our jerk-limited plan",
                  "linuxcnc": "LinuxCNC 2.9 planner model"}
+
+#: what the axis pictures of each timing need said beside their limit lines
+TIMING_NOTES = {"jerk_limited": "",
+                "linuxcnc": "LinuxCNC 2.9 plans without a jerk limit: the jerk panels set its "
+                            "motion against the machine's jerk limits, which it does not "
+                            "observe. It keeps each axis' acceleration along its chords; shown "
+                            "on the planned curve, whose direction differs from a chord's by a "
+                            "fraction of a degree, an axis that moves little may read a few "
+                            "percent over at a ramp."}
 
 
 def preview(result: PlanResult, rate_hz: float = 1000.0) -> Preview:
@@ -65,4 +76,4 @@ def preview(result: PlanResult, rate_hz: float = 1000.0) -> Preview:
     return Preview(tuple(layers), limits, hemi.centre_mm, hemi.radius_mm,
                    tuple(float(np.degrees(t.elevation_rad)) for t in hemi.tracks),
                    tuple((n.id, n.position_mm) for n in hemi.nodes), cfg.test.feed_mm_per_min,
-                   TIMING_TITLES[cfg.timing.control])
+                   TIMING_TITLES[cfg.timing.control], TIMING_NOTES[cfg.timing.control])

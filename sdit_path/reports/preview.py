@@ -13,6 +13,7 @@ Per layer:
 from __future__ import annotations
 
 import io
+import textwrap
 
 import matplotlib
 
@@ -95,8 +96,10 @@ def speed_figure(s: Samples, title: str, feed_mm_per_min: float) -> bytes:
     return _png(fig)
 
 
-def axes_figure(s: Samples, title: str, limits: dict[str, tuple[float, float, float]]) -> bytes:
-    """``limits``: axis -> (velocity, acceleration, jerk) in the CSV's units per s^k."""
+def axes_figure(s: Samples, title: str, limits: dict[str, tuple[float, float, float]],
+                note: str = "") -> bytes:
+    """``limits``: axis -> (velocity, acceleration, jerk) in the CSV's units per s^k;
+    ``note``: a line under the pictures (what the limit lines mean for this timing)."""
     names = s.axis_names
     fig, grid = plt.subplots(len(names), 3, figsize=(14, 2.1 * len(names) + 0.8), sharex=True,
                              squeeze=False)
@@ -125,14 +128,19 @@ def axes_figure(s: Samples, title: str, limits: dict[str, tuple[float, float, fl
             for sign in (1, -1):
                 ax.axhline(sign * lim, color="tab:red", ls="--", lw=0.8)
             ax.set_ylim(-span, span)
-            note = "" if span >= lim else f" (limit {lim:g} off scale)"
+            off = "" if span >= lim else f" (limit {lim:g} off scale)"
             ax.set_ylabel(f"{name} {label}\n({unit}{power})", fontsize=8)
-            ax.set_title(f"{name} {label}: peak {peak:.1%} of limit{note}", fontsize=8)
+            ax.set_title(f"{name} {label}: peak {peak:.1%} of limit{off}", fontsize=8)
             ax.tick_params(labelsize=7)
     for c in range(3):
         grid[-1][c].set_xlabel("time (s)", fontsize=8)
     fig.suptitle(title + ": per-axis motion vs limits (dashed), dwells grey", fontsize=10)
-    fig.tight_layout()
+    if note:
+        lines = textwrap.wrap(note, 150)
+        fig.tight_layout(rect=(0, 0.02 * len(lines) + 0.01, 1, 1))
+        fig.text(0.5, 0.005, "\n".join(lines), ha="center", va="bottom", fontsize=8)
+    else:
+        fig.tight_layout()
     return _png(fig)
 
 
@@ -208,7 +216,7 @@ def preview_files(pv: Preview, on_step=None) -> dict[str, bytes]:
         title = (f"{lp.program} (layer {lp.layer}, F{feed:g}, cycle {lp.cycle_s:.1f} s, "
                  f"timing: {pv.timing})")
         files[f"{lp.program}_speed.png"] = speed_figure(smp, title, feed)
-        files[f"{lp.program}_axes.png"] = axes_figure(smp, title, pv.limits)
+        files[f"{lp.program}_axes.png"] = axes_figure(smp, title, pv.limits, pv.note)
         others = [v for k, v in layer_points.items() if k != lp.layer]
         files[f"{lp.program}_hemisphere.png"] = hemisphere_figure(
             smp, others, pv.centre_mm, pv.radius_mm, tracks, nodes, title, feed)
