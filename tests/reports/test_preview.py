@@ -54,5 +54,7 @@ def test_preview_says_which_timing_it_shows(tmp_path):
     from sdit_path.plan.pipeline import plan
     from sdit_path.plan.preview import preview
 
-    assert preview(plan(load_config(config))).timing == "LinuxCNC 2.9 planner model"
+    modelled = preview(plan(load_config(config)))
+    assert modelled.timing == "LinuxCNC 2.9 planner model"
+    assert "without a jerk limit" in modelled.note  # said under its axis pictures
     assert preview(plan(load_config(DATA / "golden_small.toml"))).timing == "our jerk-limited plan"
