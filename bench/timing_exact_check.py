@@ -13,7 +13,10 @@ with no finite difference in time and none across a knot:
   constant jerk), flattened out of the :class:`ChainProfile`; every phase is sampled
   up to and including both of its ends, so the jerk on either side of every phase
   boundary and of every join between windows is seen.  Position, speed and
-  acceleration must be continuous over those joins; their jumps are reported.
+  acceleration must be continuous over those joins; their jumps are reported.  A run
+  timed by its optimal speed law (:class:`SpeedLaw`) is walked cell by cell the same
+  way, each cell evaluated exactly (position by Newton on the cell's time integral,
+  speed sqrt(b), acceleration b'/2, jerk sqrt(b) b''/2 on the cell's own side).
 * P and its first three derivatives along x are exact: each knot interval of the
   fitted spline is one polynomial (Taylor coefficients at its midpoint), u(s) and
   s(sigma) are the planner's quintic interpolants (C4, differentiated analytically),
@@ -53,7 +56,7 @@ from scipy.interpolate import BSpline
 from memory import peak_memory_line
 from sweep import layers_at_feeds
 from sdit_path.config import load_config
-from sdit_path.timing.profile import ChainProfile
+from sdit_path.timing.topp import SpeedLaw
 from sdit_path.timing.trajectory import RunGeometry, RunParameter, TimedLine, TimedRun, Timer
 
 KINDS = ("velocity", "acceleration", "jerk", "feed")
@@ -246,7 +249,9 @@ class Phases:
     j: np.ndarray
 
     @classmethod
-    def of(cls, prof: ChainProfile) -> "Phases":
+    def of(cls, prof) -> "Phases":
+        if isinstance(prof, SpeedLaw):
+            return LawPhases(prof)
         rows = []
         for w, part in enumerate(prof.parts):
             for k in range(7):
@@ -284,6 +289,23 @@ class Phases:
             below = self.state(k, mid)[0] < x
             lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
         return self.t0[k] + 0.5 * (lo + hi)
+
+
+class LawPhases(Phases):
+    """A :class:`SpeedLaw` as phases: its cells, each evaluated exactly on its own
+    (the jerk is continuous inside a cell and jumps at its edges)."""
+
+    def __init__(self, law: SpeedLaw):
+        object.__setattr__(self, "law", law)
+        t = np.asarray(law.t, dtype=float)
+        s, v, a, _ = law.state(np.arange(len(t) - 1), np.zeros(len(t) - 1))
+        for name, value in (("t0", t[:-1]), ("dur", np.diff(t)), ("x0", s), ("v0", v),
+                            ("a0", a), ("j", np.zeros(len(t) - 1))):
+            object.__setattr__(self, name, value)
+
+    def state(self, k: np.ndarray, dt: np.ndarray) -> tuple[np.ndarray, ...]:
+        k, dt = np.broadcast_arrays(np.asarray(k), np.asarray(dt, dtype=float))
+        return self.law.state(k, dt)
 
 
 # ---------------------------------------------------------------------------- check

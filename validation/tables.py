@@ -186,7 +186,7 @@ SAMPLES = ("vmc_3axis", "bc_table_5axis")
 
 EXACT = ("Our plan (`timing.control = \"jerk_limited\"`) at F600, F2000 and F5000, every "
          "run checked at every instant with exact derivatives: the phases of its ruckig "
-         "profiles themselves, the spline's pieces as polynomials (one-sided at a knot), "
+         "profiles themselves or the cells of its speed law, each evaluated exactly, the spline's pieces as polynomials (one-sided at a knot), "
          "the maps between parameters differentiated analytically "
          "(`bench/timing_exact_check.py`).",
          "How to read it: per layer and feed the largest ratio of each axis' velocity, "

@@ -187,7 +187,9 @@ def plan(config: Config, on_step: Callable[[str], None] | None = None,
             on_step(f"re-measure program of layer {layer.name} planned and checked")
     if bad:
         raise _infeasible_message(bad)
-    timer = Timer(config, kin)
+    # a LinuxCNC-timed plan replaces every run's timing by the control's: the
+    # windows' plan gives it its structure, the optimal speed law would be wasted
+    timer = Timer(config, kin, optimal=config.timing.control != "linuxcnc")
     timed_layers, programs = [], []
     for lp in layers:
         posted = {}

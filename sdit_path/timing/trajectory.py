@@ -3,6 +3,8 @@
 Every run (dwell to dwell) is timed by ruckig along the ball's arc length or, where
 that is quicker on a machine with rotary axes, along the arc length of the machine's
 axis path (:class:`RunParameter`), with limits from :mod:`~sdit_path.timing.limits`;
+where anything but the feed binds, by its time-optimal speed law
+(:mod:`~sdit_path.timing.topp`) if that is quicker;
 at every static node the machine rests for the dwell; where a program steps over
 left-out segments (bar off) it repositions along straight lines, rest to rest.  The
 program's own first positioning move (from wherever the machine was) is not part of
@@ -28,7 +30,9 @@ from ..geometry.paths import Dwell, LayerPath, Remount, Run
 from ..machine.kinematics import Kinematics
 from ..machine.schedule import RotarySchedule
 from .limits import Budget, PathLimits, budget
+from . import topp
 from .profile import PHASES, ChainProfile, Profile, plan_chain, plan_profile
+from .topp import SpeedLaw
 
 
 def quintic_hermite(x: np.ndarray, y: np.ndarray, dy: np.ndarray, ddy: np.ndarray) -> PPoly:
@@ -204,12 +208,27 @@ def _same(a: Budget, b: Budget, tol: float = 0.005) -> bool:
                     for x, y in ((a.m1, b.m1), (a.m2, b.m2), (a.m3, b.m3))))
 
 
+def _cruising(s: np.ndarray, speed: np.ndarray, feed: float, margin_mm: float,
+              share: float = 0.999, grid_mm: float = 0.5) -> np.ndarray:
+    """Spans ``(k, 2)`` (mm) where the ball's ``speed`` at ``s`` stays at ``share`` of
+    the feed or more, each shrunk by ``margin_mm`` at both ends and then to multiples
+    of ``grid_mm`` (runs that differ in the last digits of their plan get equal cells,
+    and can share a speed law)."""
+    at = np.r_[False, speed >= share * feed, False].astype(int)
+    change = np.flatnonzero(np.diff(at))
+    starts, ends = change[::2], change[1::2] - 1
+    spans = np.column_stack([np.ceil((s[starts] + margin_mm) / grid_mm) * grid_mm,
+                             np.floor((s[ends] - margin_mm) / grid_mm) * grid_mm])
+    return spans[spans[:, 1] > spans[:, 0]]
+
+
 @dataclass(frozen=True, slots=True)
 class TimedRun:
-    """A run timed along ``param`` (the profile's position is that parameter)."""
+    """A run timed along ``param`` (the profile's position is that parameter; a speed
+    law runs along the ball's arc length)."""
 
     geometry: RunGeometry
-    profile: ChainProfile
+    profile: ChainProfile | SpeedLaw
     start_s: float
     carry_in: float | None
     param: RunParameter
@@ -252,8 +271,11 @@ class TimedLayer:
 class Timer:
     """Times layer paths for one configuration."""
 
-    def __init__(self, config: Config, kinematics: Kinematics | None = None):
+    def __init__(self, config: Config, kinematics: Kinematics | None = None,
+                 optimal: bool = True):
         self.config = config
+        self.optimal = optimal
+        self._laws: dict[tuple, list] = {}  # speed laws found, by cell count and feed
         self.kin = kinematics or Kinematics(config.machine)
         self.schedule = RotarySchedule(config, self.kin)
         self.feed = config.test.feed_mm_per_min / 60.0
@@ -350,29 +372,94 @@ class Timer:
         return windows, carry_out
 
     def time_run(self, geo: RunGeometry, carry: float | None, label: str,
-                 feed: float | None = None) -> tuple[ChainProfile, RunParameter, float | None]:
+                 feed: float | None = None
+                 ) -> tuple[ChainProfile | SpeedLaw, RunParameter, float | None]:
         """A run's profile, the parameter it runs along, and the azimuth carry after it.
 
-        It is timed along the ball's arc length; where something other than the feed
-        caps the speed on a machine with rotary axes, and the axis path's windows
+        It is timed along the ball's arc length by windows of constant limits
+        (:func:`~sdit_path.timing.profile.plan_chain`); where something other than the
+        feed caps the speed on a machine with rotary axes, and the axis path's windows
         (:class:`RunParameter`) would take less time at their speed caps than the ball's
         do, it is timed along the axis path too, and the quicker of the two is kept.
         Along the axis path the feed caps a speed that is not the ball's, and the cap
         follows ``ds/dsigma`` window by window: where the feed alone binds, the ball's
-        arc length is as quick and cheaper to plan."""
+        arc length is as quick and cheaper to plan.  Where anything but the feed binds,
+        the time-optimal speed law (:mod:`~sdit_path.timing.topp`) is sought from that
+        plan and kept if it is quicker (unless the timer was made without it)."""
+        feed = self.feed if feed is None else feed
         param = RunParameter(geo.length_mm)
         windows, carry_out = self.run_windows(geo, carry, param, feed=feed)
         prof = plan_chain(windows, label)
-        if self._weights is None or all(b.binding == "feed" for _, b in windows):
+        if all(b.binding == "feed" for _, b in windows):
             return prof, param, carry_out
-        axis_path = self.parameter(geo, carry)
-        other_windows = self.run_windows(geo, carry, axis_path, feed=feed)[0]
-        if _cap_time(other_windows) >= _cap_time(windows):
-            return prof, param, carry_out
-        other = plan_chain(other_windows, label)
-        if other.duration_s < prof.duration_s:
-            return other, axis_path, carry_out
+        if self._weights is not None:
+            axis_path = self.parameter(geo, carry)
+            other_windows = self.run_windows(geo, carry, axis_path, feed=feed)[0]
+            if _cap_time(other_windows) < _cap_time(windows):
+                other = plan_chain(other_windows, label)
+                if other.duration_s < prof.duration_s:
+                    prof, param = other, axis_path
+        if self.optimal:
+            law = self.speed_law(geo, carry, prof, param, feed)
+            if law is not None and law.duration_s < prof.duration_s:
+                return law, RunParameter(geo.length_mm), carry_out
         return prof, param, carry_out
+
+    def run_jet(self, geo: RunGeometry, carry: float | None, edges: np.ndarray,
+                points: int = 9, step_mm: float = 0.005, per_knot: int = 16) -> topp.Jet:
+        """Axis derivatives along the ball's arc length at ``points`` evenly spaced
+        points of every cell between ``edges`` (mm; its ends included), each from
+        differences on the grid of its own knot interval of at most ``step_mm`` (as
+        :meth:`run_windows` takes them), interpolated linearly; a point on a knot takes
+        the side of its cell's middle (the third derivative jumps there)."""
+        knots = _knots_along(geo, RunParameter(geo.length_mm))
+        frac = np.linspace(0.0, 1.0, points)
+        h = np.diff(edges)[:, None]
+        where = edges[:-1, None] + h * frac[None, :]
+        inward = where + 1e-9 * h * np.sign(0.5 - frac)[None, :]
+        interval = np.clip(np.searchsorted(knots, inward, side="right") - 1, 0, len(knots) - 2)
+        out = [np.zeros(where.shape + (len(self.v_lim),)) for _ in range(3)]
+        for i in np.unique(interval):
+            a, b = knots[i], knots[i + 1]
+            n = max(per_knot, math.ceil((b - a) / step_mm))
+            x = np.linspace(a, b, n + 1)
+            q, _ = self.axis_values(geo.points(x), carry)
+            derivs = _inside(*axis_derivatives(q, (b - a) / n))
+            sel = interval == i
+            for arr, d in zip(out, derivs):
+                for ax in range(d.shape[1]):
+                    arr[..., ax][sel] = np.interp(where[sel], x, d[:, ax])
+        return topp.Jet(frac, *out)
+
+    def speed_law(self, geo: RunGeometry, carry: float | None, prof: ChainProfile,
+                  param: RunParameter, feed: float, samples: int = 20001,
+                  margin_mm: float = 2.0) -> topp.SpeedLaw | None:
+        """The time-optimal speed law of a run (:func:`~sdit_path.timing.topp.solve`),
+        its first tangent at the windows' plan ``prof`` along ``param``, on coarse cells
+        where that plan cruises at the feed (more than ``margin_mm`` from where it does
+        not: a crest's speed-up and slow-down stay on fine cells).  A law found for
+        an earlier run on the same cells (forwards or backwards: a pass and its way
+        back, a mirror image, the table turning the same curve at another azimuth) is
+        taken again if it keeps this run's axes within every limit at every point where
+        the solver checks its own (:func:`~sdit_path.timing.topp.holds`)."""
+        t = np.linspace(0.0, prof.duration_s, samples)
+        sigma, v = prof.evaluate(t)[:2]
+        s, speed = param.s(sigma), param.ds(sigma) * v
+        edges = topp.cells(_knots_along(geo, RunParameter(geo.length_mm)),
+                           _cruising(s, speed, feed, margin_mm))
+        jet = self.run_jet(geo, carry, edges)
+        key = (len(edges), float(feed))
+        for found in self._laws.get(key, ()):
+            for law in (found, found.reversed()):
+                if (np.abs(law.s - edges).max() <= 1e-9 * edges[-1]
+                        and topp.holds(law, jet, self.v_lim, self.a_lim, self.j_lim, feed)):
+                    return law
+        b_start = np.interp(edges, s, speed ** 2)
+        law = topp.solve(edges, jet, self.v_lim, self.a_lim, self.j_lim, feed, b_start,
+                         prof.limits)
+        if law is not None:
+            self._laws.setdefault(key, []).append(law)
+        return law
 
     def line_limits(self, a: np.ndarray, b: np.ndarray, angles_from: dict, angles_to: dict
                     ) -> PathLimits:
