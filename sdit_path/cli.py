@@ -170,6 +170,16 @@ def preview_command(config: str | None, out_dir: str, feed: float | None, force:
                         f"\"{cfg.timing.control}\")")
 
 
+def _controller_option(f):
+    """``--controller``: whose programs were run (the expected reading follows the
+    program as written for it: LinuxCNC's chords)."""
+    return click.option(
+        "--controller", default=None,
+        help="The controller whose programs were run (sinumerik840d, linuxcnc, ...); the "
+             "expected reading follows its program as written (LinuxCNC's chords). "
+             "Default: the first the plan lists.")(f)
+
+
 def _in_range(name: str, value: float, lo: float, hi: float) -> None:
     from .errors import ConfigError
 
@@ -204,8 +214,9 @@ def _floats(text: str, n: int, name: str) -> tuple[float, ...]:
 @click.option("--out", "out_file", required=True, type=click.Path(dir_okay=False),
               help="Trace CSV to write.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress lines on stderr.")
+@_controller_option
 def simulate_command(plan_dir, program, errors_file, centring_um, bar_offset_um, noise_um,
-                     quantisation_um, seed, out_file, quiet) -> None:
+                     quantisation_um, seed, out_file, quiet, controller) -> None:
     """Simulate the ballbar trace of PROGRAM for an error set."""
     from .errormodel.errorset import load_error_set
     from .output import write_file
@@ -221,7 +232,7 @@ def simulate_command(plan_dir, program, errors_file, centring_um, bar_offset_um,
         for v in centring:
             _in_range("--centring-um", v, -1e4, 1e4)
         with _Steps(quiet, 3, "reading the plan") as step:
-            plan = load_plan(plan_dir)
+            plan = load_plan(plan_dir).for_controller(controller)
             errors = load_error_set(errors_file)
             step(f"simulating {program}")
             trace = simulate_trace(plan, program, errors, centring, bar_offset_um, noise_um,
@@ -257,8 +268,9 @@ def simulate_command(plan_dir, program, errors_file, centring_um, bar_offset_um,
 @click.option("--ask", multiple=True, help="A parameter you need: say what would make it identifiable.")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Write the full report.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress lines on stderr.")
+@_controller_option
 def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, rotary_order,
-                     no_squareness, no_location, prior, ask, json_out, quiet) -> None:
+                     no_squareness, no_location, prior, ask, json_out, quiet, controller) -> None:
     """Identify what the traces determine about the machine's geometric errors."""
     import json
 
@@ -275,7 +287,7 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
         if programs and len(programs) != len(traces):
             raise ConfigError("--program", f"give one program per trace ({len(traces)})")
         with _Steps(quiet, 2 * len(traces) + 2, "reading the plan") as step:
-            plans = [load_plan(d) for d in plan_dirs]
+            plans = [load_plan(d).for_controller(controller) for d in plan_dirs]
             options = ModelOptions(linear_basis, linear_order, rotary_order, not no_squareness,
                                    not no_location)
             result = identify_recordings(
@@ -311,8 +323,9 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
               help="Worker processes for matching and diagnosis (default: one per core); "
                    "the output is the same for any number.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress and no summary.")
+@_controller_option
 def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_order,
-                    no_squareness, no_location, no_pictures, jobs, quiet) -> None:
+                    no_squareness, no_location, no_pictures, jobs, quiet, controller) -> None:
     """Analyse recordings of a plan's programs: geometry, effects and what stays
     unexplained, estimated together."""
     from pathlib import Path
@@ -328,7 +341,7 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
     from .reports.diagnosis import pictures as diagnosis_pictures
 
     try:
-        plan = load_plan(plan_dir)
+        plan = load_plan(plan_dir).for_controller(controller)
         items = []
         for m in measured:
             prog, sep, path = m.partition("=")
@@ -481,7 +494,9 @@ def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead
 @click.option("--pictures", "pic_dir", type=click.Path(file_okay=False),
               help="Write residual_time.png and residual_hemisphere.png here.")
 @click.option("--quiet", "-q", is_flag=True, help="No summary on stdout.")
-def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir, quiet) -> None:
+@_controller_option
+def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir, quiet,
+                     controller) -> None:
     """Diagnose the gap between the simulated and the measured trace of PROGRAM."""
     import json
     from pathlib import Path
@@ -495,7 +510,7 @@ def diagnose_command(plan_dir, program, measured, model_file, json_out, pic_dir,
     from .reports.diagnosis import pictures, summary_text
 
     try:
-        plan = load_plan(plan_dir)
+        plan = load_plan(plan_dir).for_controller(controller)
         if program not in plan.program_names:
             raise ConfigError(plan_dir, f"no program {program!r}; programs: "
                                         f"{', '.join(plan.program_names)}")

@@ -23,16 +23,18 @@ log = logging.getLogger(__name__)
 
 
 def expected_reading(plan: PlanFiles, ctx: Context, model: ErrorSet | None) -> np.ndarray:
-    """The simulated bar reading (um) on the trajectory grid: exact chain, no noise."""
+    """The simulated bar reading (um) on the trajectory grid: exact chain, no noise,
+    along the program as written for the plan's controller (``ctx.written_um``)."""
     cfg = plan.config
+    written = ctx.written_um if len(ctx.written_um) == ctx.n else np.zeros(ctx.n)
     if model is None:
-        return np.zeros(ctx.n)
+        return written.copy()
     kin = Kinematics(cfg.machine)
     em, theta = error_values(plan, model)
     k = strided(ctx.n, ctx.ball_mm)  # smooth in the pose: a coarser grid, interpolated
     ball = actual_ball(kin, em, theta, ctx.q[k])
     val = (np.linalg.norm(ball - ctx.pivot_mm, axis=1) - cfg.ballbar.bar_length_mm) * 1e3
-    return np.interp(np.arange(ctx.n), k, val)
+    return np.interp(np.arange(ctx.n), k, val) + written
 
 
 class TrialModel:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path, PurePosixPath
 
 import numpy as np
@@ -31,6 +31,9 @@ class PlanFiles:
     directory: Path
     config: Config
     manifest: dict
+    #: which controller's programs the recordings come from (None: the first the plan
+    #: lists); the expected reading follows the program as written for it
+    controller: str | None = None
     #: trajectories read so far (each file is read and checked once per loaded plan;
     #: its arrays are read-only)
     _read: dict = field(default_factory=dict, compare=False, repr=False)
@@ -73,6 +76,43 @@ class PlanFiles:
         _check_samples(samples, str(path), self.config)
         _check_program(path, entry, samples)
         return samples
+
+    @property
+    def controllers(self) -> list[str]:
+        """The controllers the plan wrote programs for, in the config's order."""
+        written = {p.get("controller") for p in self.manifest["programs"]}
+        return [c for c in self.config.post.controllers if c in written]
+
+    def for_controller(self, name: str | None) -> "PlanFiles":
+        """This plan, its recordings taken as runs of ``name``'s programs (None: the
+        first controller the plan lists).  Refuses a controller it has no programs for."""
+        if name is None:
+            return self
+        if name not in self.controllers:
+            raise ConfigError(str(self.directory), f"no programs for controller {name!r}; "
+                                                   f"this plan has {', '.join(self.controllers)}")
+        return replace(self, controller=name, _read=self._read)
+
+    @property
+    def ran_on(self) -> str | None:
+        """The controller whose programs the recordings come from."""
+        return self.controller or next(iter(self.controllers), None)
+
+    def program_text(self, program: str) -> tuple[str, dict] | None:
+        """The text of ``program`` as written for :attr:`ran_on`, fingerprint-checked,
+        and its plan.json entry (None for a plan held in memory)."""
+        if self.directory is None:
+            return None
+        entry = next((p for p in self.manifest["programs"] if p["name"] == program
+                      and p.get("controller") == self.ran_on), None)
+        if entry is None:
+            raise ConfigError(str(self.directory), f"no {self.ran_on} program {program!r}")
+        path = _inside(self.directory, entry.get("file"), "programs[].file")
+        _check_fingerprint(self.directory, self.manifest, entry["file"])
+        try:
+            return path.read_text(encoding="utf-8"), entry
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(str(path), f"cannot read the program: {exc}") from None
 
     def tested_travel(self) -> dict[str, tuple[float, float]]:
         return {k: (v[0], v[1]) for k, v in self.manifest.get("tested_travel", {}).items()}

@@ -13,6 +13,7 @@ import numpy as np
 from ..machine.kinematics import Kinematics
 from ..plan.files import PlanFiles
 from ..timing.trajectory import axis_values_rad
+from .written import written_deviation_um
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,6 +61,10 @@ class Context:
     #: seen through it (``u`` turns with a rotary table; without one it is ``u`` itself)
     u_bed: np.ndarray
     observable: tuple[int, ...] = ()
+    #: ``(n,)`` um: the bar length along the program as written for the plan's
+    #: controller less that along the planned path (LinuxCNC's chords; zeros for a
+    #: controller that writes the curve): part of every expected reading
+    written_um: np.ndarray = field(default_factory=lambda: np.zeros(0))
     #: arrays derived from the others, kept by the stages that read them (keyed by each)
     cache: dict = field(default_factory=dict)
 
@@ -220,4 +225,5 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
                    tuple(rev_times), at_rev, moving, np.asarray(traj.segment, dtype=object), phase,
                    tuple(kin.names), linear, pivot, run_id.astype(int), v, acc, jerk, arc,
                    integral, arc[first], arc[last_idx][run_no], u_bed,
-                   tuple(j for j in range(m) if float(np.sqrt(np.mean(gain[:, j] ** 2))) > 1e-6))
+                   tuple(j for j in range(m) if float(np.sqrt(np.mean(gain[:, j] ** 2))) > 1e-6),
+                   written_um=written_deviation_um(plan, program, ball, moving))

@@ -21,6 +21,7 @@ from ..errors import ConfigError
 from ..machine.kinematics import Kinematics
 from ..plan.files import PlanFiles
 from ..reading.trace import Trace
+from ..reading.written import written_deviation_um
 from ..timing.trajectory import axis_values_rad
 
 
@@ -47,6 +48,8 @@ def simulate_trace(plan: PlanFiles, program: str, errors: ErrorSet,
     ball = actual_ball(kin, model, theta, q)
     pivot = np.array(cfg.ballbar.pivot_mm) + np.asarray(centring_um, dtype=float) * 1e-3
     dl = (np.linalg.norm(ball - pivot, axis=1) - cfg.ballbar.bar_length_mm) * 1e3 + bar_offset_um
+    moving = (traj.phase != "dwell") & (traj.phase != "reposition")
+    dl = dl + written_deviation_um(plan, program, np.asarray(traj.ball_mm, float), moving)
     rng = np.random.default_rng(seed)
     if noise_um > 0:
         dl = dl + rng.normal(0.0, noise_um, len(dl))
@@ -54,6 +57,6 @@ def simulate_trace(plan: PlanFiles, program: str, errors: ErrorSet,
         dl = np.round(dl / quantisation_um) * quantisation_um
     dl[traj.phase == "reposition"] = np.nan
     rate = 1.0 / float(np.median(np.diff(traj.t_s))) if len(traj.t_s) > 1 else 1000.0
-    header = {"program": program, "sample_rate_hz": f"{rate:.6g}",
+    header = {"program": program, "controller": plan.ran_on or "", "sample_rate_hz": f"{rate:.6g}",
               "bar_length_mm": f"{cfg.ballbar.bar_length_mm:g}", "source": "sdit-path simulate"}
     return Trace(traj.t_s, dl, traj.segment, traj.phase, header)
