@@ -440,9 +440,13 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, jobs, quie
               help="Measured-trace CSV to write (t_s, delta_l_um).")
 @click.option("--truth", "truth_file", type=click.Path(dir_okay=False),
               help="Write what was hidden here (never into the trace).")
+@click.option("--control", default=None, type=click.Choice(["linuxcnc"]),
+              help="Make the recording from the motion of a real control running the "
+                   "program as written for it (LinuxCNC 2.9's planner: its chords, ramps, "
+                   "blends and slow-downs) instead of the plan's trajectory.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress lines on stderr.")
 def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead_s, clock_ppm,
-                    out_file, truth_file, quiet) -> None:
+                    out_file, truth_file, control, quiet) -> None:
     """Make a realistic measured trace of PROGRAM with hidden effects."""
     import json
     from pathlib import Path
@@ -463,6 +467,11 @@ def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead
         with _Steps(quiet, 3, "reading the plan") as step:
             plan = load_plan(plan_dir)
             model = load_error_set(model_file) if model_file else None
+            control_runs = None
+            if control:
+                from .sim.control_motion import control_plan
+
+                plan, control_runs = control_plan(plan, program, control)
             ctx = build_context(plan, program)
             hidden, rec = hidden_and_recording(ctx, effects, seed, noise_um=noise_um,
                                                lead_s=lead_s, clock_ppm=clock_ppm)
@@ -474,7 +483,10 @@ def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead
             step(f"writing {out_file}")
             write_file(out_file, measured_csv(trace))
             if truth_file:
-                write_file(truth_file, json.dumps(truth_json(truth), indent=2) + "\n")
+                told = truth_json(truth)
+                if control_runs is not None:
+                    told["control"] = {"name": control, "runs": control_runs}
+                write_file(truth_file, json.dumps(told, indent=2) + "\n")
     except SditError as exc:
         _fail(exc)
         return

@@ -34,6 +34,9 @@ class PlanFiles:
     #: which controller's programs the recordings come from (None: the first the plan
     #: lists); the expected reading follows the program as written for it
     controller: str | None = None
+    #: whether the trajectories are the plan's, to which the program as written adds
+    #: its own geometry (False where a trajectory is a control's motion of it already)
+    as_written: bool = True
     #: trajectories read so far (each file is read and checked once per loaded plan;
     #: its arrays are read-only)
     _read: dict = field(default_factory=dict, compare=False, repr=False)

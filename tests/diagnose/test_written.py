@@ -63,3 +63,42 @@ def test_a_clean_recording_of_linuxcnc_has_no_finding(plan_f1500):
     trace = _linuxcnc_recording(plan, "SDIT_E", noise_um=0.02)
     result, _ = diagnose_recording(plan, "SDIT_E", trace, "linuxcnc.csv")
     assert not result.findings, [f.effect for f in result.findings]
+
+
+@pytest.mark.slow
+def test_a_linuxcnc_user_plans_the_controls_timing_and_reads_a_clean_recording_as_clean(
+        tmp_path, default_text):
+    """Planned for LinuxCNC with its timing (``timing.control = "linuxcnc"``), a
+    recording made from the control's own motion (``perturb --control linuxcnc``: the
+    chords, ramps and blends of LinuxCNC 2.9's planner) is aligned to its start and
+    clock and has no finding; the truth says each run's planned and control time."""
+    import json
+    import subprocess
+    import sys
+
+    from conftest import edit
+
+    text = edit(default_text, "controllers", '["linuxcnc"]')
+    text = edit(text, "feed_mm_per_min", "1500.0")
+    cfg = tmp_path / "lc.toml"
+    cfg.write_text(text + '\n[timing]\ncontrol = "linuxcnc"\n')
+
+    def run(*args):
+        r = subprocess.run([sys.executable, "-m", "sdit_path", *args], capture_output=True,
+                           text=True, timeout=900)
+        assert r.returncode == 0, r.stderr
+        return r.stdout
+
+    run("plan", str(cfg), "--out", str(tmp_path / "P"), "-q")
+    run("perturb", "--plan", str(tmp_path / "P"), "--program", "SDIT_E", "--control", "linuxcnc",
+        "--noise-um", "0.02", "--lead-s", "4", "--clock-ppm", "30",
+        "--out", str(tmp_path / "rec.csv"), "--truth", str(tmp_path / "truth.json"), "-q")
+    truth = json.loads((tmp_path / "truth.json").read_text())
+    runs = truth["control"]["runs"]
+    assert len(runs) == 22 and all(abs(r["control_s"] / r["planned_s"] - 1) < 0.005 for r in runs)
+    run("diagnose", "--plan", str(tmp_path / "P"), "--program", "SDIT_E", "--measured",
+        str(tmp_path / "rec.csv"), "--json", str(tmp_path / "d.json"), "-q")
+    report = json.loads((tmp_path / "d.json").read_text())
+    assert report["findings"] == []
+    al = report["alignment"]
+    assert abs(al["offset_s"] - 4.0) < 0.002 and abs(al["clock_ppm"] - 30.0) < 3.0
