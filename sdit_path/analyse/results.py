@@ -34,12 +34,14 @@ class Analysed:
 @dataclass(frozen=True, slots=True)
 class AnalysisResult:
     """The recordings of one test analysed together: ``recordings`` in the order given,
-    ``geometry`` (identified with the effects found as nuisances) and ``warnings`` (one
-    line each)."""
+    ``geometry`` (identified with the effects found as nuisances), ``warnings`` (one
+    line each) and per recording the ``timing`` its program was read with (``model``:
+    ``plan`` or the control's, then ``runs``: each run's planned and control time)."""
 
     recordings: tuple[Analysed, ...]
     geometry: Identification
     warnings: tuple[str, ...]
+    timing: tuple[dict, ...] = ()
 
     def to_json(self) -> dict:
         geometry = self.geometry.to_json()
@@ -54,7 +56,8 @@ class AnalysisResult:
                      "contribution_rms_um": f["contribution_rms_um"]})
             per.append({"file": a.label, "program": a.program, "matched": a.matched,
                         "first_alignment": a.aligned.as_json(), "diagnosis": dj,
-                        "nuisances": geometry["nuisances"][k]})
+                        "nuisances": geometry["nuisances"][k],
+                        "timing": self.timing[k] if k < len(self.timing) else {"model": "plan"}})
         return {"recordings": per, "geometry": geometry,
                 "aliasing": geometry.get("aliasing", []),
                 "across_recordings": across, "warnings": list(self.warnings)}

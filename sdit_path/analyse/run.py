@@ -174,7 +174,7 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
                         extra=[extra[k][0] for k in range(len(first))],
                         groups=[extra[k][1] for k in range(len(first))], jobs=jobs,
                         prepared=prepared)
-    return _result(analysed, geometry)
+    return _result(analysed, geometry, _timing(plan, analysed))
 
 
 def _on_program_time(label: str, rec: AlignedRecording, trace: Trace, d: Diagnosis,
@@ -187,7 +187,22 @@ def _on_program_time(label: str, rec: AlignedRecording, trace: Trace, d: Diagnos
                  {**trace.header, "program": rec.program, "source": f"aligned {label}"})
 
 
-def _result(done: list[Analysed], geometry: Identification) -> AnalysisResult:
+def _timing(plan: PlanFiles, done: list[Analysed]) -> tuple[dict, ...]:
+    """Per recording, whose timing its program was read with: the plan's, or the
+    control's own (LinuxCNC's planner on a plan timed by our model), then with every
+    run's planned and control duration."""
+    if not plan.control_motion:
+        return tuple({"model": "plan"} for _ in done)
+    from ..sim.control_motion import run_table
+
+    base = plan.planned()
+    return tuple({"model": "linuxcnc",
+                  "runs": run_table(base.trajectory(a.program), plan.trajectory(a.program))}
+                 for a in done)
+
+
+def _result(done: list[Analysed], geometry: Identification,
+            timing: tuple[dict, ...] = ()) -> AnalysisResult:
     """The analysis, with a warning where geometry and effects leave more than the
     recordings' noise and one per recording whose rest no effect explains."""
     warnings = []
@@ -202,4 +217,4 @@ def _result(done: list[Analysed], geometry: Identification) -> AnalysisResult:
         if a.diagnosis.unexplained.get("significant"):
             warnings.append(f"{a.label} ({a.program}): {a.diagnosis.unexplained['rms_um']:.2f} um "
                             f"RMS left that no effect of the library explains")
-    return AnalysisResult(tuple(done), geometry, tuple(warnings))
+    return AnalysisResult(tuple(done), geometry, tuple(warnings), timing)

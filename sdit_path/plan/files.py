@@ -53,9 +53,29 @@ class PlanFiles:
     def program_names(self) -> list[str]:
         return sorted({p["name"] for p in self.manifest["programs"]})
 
+    @property
+    def control_motion(self) -> bool:
+        """Whether the trajectories are the control's motion of the programs as written
+        rather than the plan's: recordings of LinuxCNC (``--controller linuxcnc``) of a
+        plan timed by our jerk-limited model.  The control's planner
+        (:mod:`~sdit_path.timing.linuxcnc_tp`) gives its ramps, blends and slow-downs,
+        which on a 5-axis program take up to twice the planned time per run."""
+        return (self.directory is not None and self.controller == "linuxcnc"
+                and self.config.timing.control != "linuxcnc")
+
+    def planned(self) -> "PlanFiles":
+        """This plan with its own trajectories (not the control's motion)."""
+        return replace(self, controller=None, _read={}) if self.control_motion else self
+
     def trajectory(self, program: str) -> Samples:
         if program not in self._read:
-            samples = self._load_trajectory(program)
+            if self.control_motion:
+                from ..sim.control_motion import control_samples
+
+                base = replace(self, controller=None, _read={})
+                samples = control_samples(base, program, "linuxcnc")
+            else:
+                samples = self._load_trajectory(program)
             for f in fields(samples):
                 value = getattr(samples, f.name)
                 if isinstance(value, np.ndarray):
@@ -88,13 +108,16 @@ class PlanFiles:
 
     def for_controller(self, name: str | None) -> "PlanFiles":
         """This plan, its recordings taken as runs of ``name``'s programs (None: the
-        first controller the plan lists).  Refuses a controller it has no programs for."""
+        first controller the plan lists): the expected reading follows the program as
+        written for it and, for LinuxCNC, the control's own timing
+        (:attr:`control_motion`).  Refuses a controller it has no programs for."""
         if name is None:
             return self
         if name not in self.controllers:
             raise ConfigError(str(self.directory), f"no programs for controller {name!r}; "
                                                    f"this plan has {', '.join(self.controllers)}")
-        return replace(self, controller=name, _read=self._read)
+        fresh = name == "linuxcnc" and self.config.timing.control != "linuxcnc"
+        return replace(self, controller=name, _read={} if fresh else self._read)
 
     @property
     def ran_on(self) -> str | None:

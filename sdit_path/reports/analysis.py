@@ -22,6 +22,7 @@ def summary_text(report: dict) -> str:
                      f"{al['offset_s']:.4f} s of the recording (+- {_ms(al['offset_std_s'])} ms), "
                      f"clock {al['clock_ppm']:+.1f} ppm (+- {_num(al['clock_std_ppm'])}), noise "
                      f"{r['diagnosis']['noise_um']:.2f} um")
+        lines.extend(_timing_lines(r.get("timing") or {"model": "plan"}))
     for w in report["warnings"]:
         lines.append(f"WARNING: {w}")
     lines.append("")
@@ -57,6 +58,23 @@ def summary_text(report: dict) -> str:
         lines.append(f"RECORDING {r['file']} ({r['program']}):")
         lines.append(_diagnosis_text(r["diagnosis"]))
     return "\n".join(lines).rstrip() + "\n"
+
+
+def _timing_lines(timing: dict, within: float = 0.02) -> list[str]:
+    """How the recording's program was timed, and the runs whose control time is more
+    than ``within`` off the plan's."""
+    if timing["model"] == "plan":
+        return []
+    runs = timing["runs"]
+    off = [r for r in runs if abs(r["control_s"] / r["planned_s"] - 1.0) > within]
+    head = (f"    timing: the control's own (LinuxCNC 2.9's planner on the program as written), "
+            f"not the plan's; {len(runs) - len(off)} of {len(runs)} runs within "
+            f"{within * 100:.0f} % of the planned time")
+    out = [head + (":" if off else ".")]
+    for r in off:
+        name = r["from"] if r["from"] == r["to"] else f"{r['from']}..{r['to']}"
+        out.append(f"      run {name}: {r['control_s']:.2f} s, planned {r['planned_s']:.2f} s")
+    return out
 
 
 def _ms(v) -> str:

@@ -108,18 +108,26 @@ def control_plan(plan: PlanFiles, program: str, control: str = "linuxcnc"
     geometry is added on top: the motion is the program as written), and per stretch
     of motion between standstills the planned and the control's duration (s)."""
     samples = control_samples(plan, program, control)
-    planned = plan.trajectory(program)
-    runs = []
-    for what in (planned, samples):
-        moving = (what.phase != "dwell") & (what.phase != "reposition")
-        edges = np.flatnonzero(np.diff(np.r_[0, moving.astype(int), 0]))
-        runs.append([(what.segment[a], what.segment[b - 1], (b - a) * float(
-            np.median(np.diff(what.t_s)))) for a, b in zip(edges[::2], edges[1::2])])
-    table = [{"from": str(p[0]), "to": str(p[1]), "planned_s": round(p[2], 4),
-              "control_s": round(c[2], 4)} for p, c in zip(*runs)]
+    table = run_table(plan.trajectory(program), samples)
     replaced = replace(plan, controller=None, _read={**plan._read, program: samples},
                        as_written=False)
     return replaced, table
+
+
+def run_times(samples: Samples) -> list[tuple[str, str, float]]:
+    """Every stretch of motion between standstills: its first and last segment and its
+    duration (s)."""
+    moving = (samples.phase != "dwell") & (samples.phase != "reposition")
+    edges = np.flatnonzero(np.diff(np.r_[0, moving.astype(int), 0]))
+    step = float(np.median(np.diff(samples.t_s))) if len(samples.t_s) > 1 else 0.0
+    return [(str(samples.segment[a]), str(samples.segment[b - 1]), (b - a) * step)
+            for a, b in zip(edges[::2], edges[1::2])]
+
+
+def run_table(planned: Samples, control: Samples) -> list[dict]:
+    """Per stretch of motion the planned and the control's duration (s)."""
+    return [{"from": p[0], "to": p[1], "planned_s": round(p[2], 4), "control_s": round(c[2], 4)}
+            for p, c in zip(run_times(planned), run_times(control))]
 
 
 def _machine_values(pos: np.ndarray, axes: tuple[str, ...], kin: Kinematics, table: bool,

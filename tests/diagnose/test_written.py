@@ -16,12 +16,39 @@ from sdit_path.reading.trace import Trace
 from sdit_path.timing.linuxcnc_tp import ControlLimits, simulate, stretches
 
 
-def test_the_chords_enter_the_expected_reading_of_a_linuxcnc_program(plan_f1500):
-    plan = load_plan(plan_f1500)
-    assert plan.ran_on == "sinumerik840d"  # the first the sample lists
-    spline = build_context(plan, "SDIT_E").written_um
-    assert not spline.any()  # the BSPLINE keeps the sphere to nanometres
-    ctx = build_context(plan.for_controller("linuxcnc"), "SDIT_E")
+@pytest.fixture(scope="module")
+def linuxcnc_plan(tmp_path_factory, default_text):
+    """The default sample at F1500 written for LinuxCNC alone and timed by its planner
+    (``timing.control = "linuxcnc"``), planned by the command line."""
+    import subprocess
+    import sys
+
+    from conftest import edit
+
+    d = tmp_path_factory.mktemp("lc")
+    text = edit(edit(default_text, "controllers", '["linuxcnc"]'), "feed_mm_per_min", "1500.0")
+    (d / "lc.toml").write_text(text + '\n[timing]\ncontrol = "linuxcnc"\n')
+    r = subprocess.run([sys.executable, "-m", "sdit_path", "plan", str(d / "lc.toml"), "--out",
+                        str(d / "P"), "-q"], capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    return d / "P"
+
+
+@pytest.mark.slow
+def test_the_chords_enter_the_expected_reading_of_a_linuxcnc_program(linuxcnc_plan, plan_f1500):
+    both = load_plan(plan_f1500)
+    assert both.ran_on == "sinumerik840d"  # the first the sample lists
+    assert not build_context(both, "SDIT_E").written_um.any()  # a BSPLINE: the curve
+    with pytest.raises(ConfigError, match="no programs for controller 'fanuc'"):
+        both.for_controller("fanuc")
+    # planned with our timing and run by LinuxCNC, the trajectory is the control's own
+    # motion of the chords: nothing is added on top
+    assert both.for_controller("linuxcnc").control_motion
+    assert not build_context(both.for_controller("linuxcnc"), "SDIT_E").written_um.any()
+    # planned with LinuxCNC's timing, the trajectory keeps to the curve: the chords add
+    plan = load_plan(linuxcnc_plan)
+    assert plan.ran_on == "linuxcnc" and not plan.control_motion
+    ctx = build_context(plan, "SDIT_E")
     written = ctx.written_um
     tolerance_um = plan.config.post.chord_tolerance_um
     # inside the sphere between vertices, by up to the chord tolerance, never out
@@ -29,8 +56,6 @@ def test_the_chords_enter_the_expected_reading_of_a_linuxcnc_program(plan_f1500)
     assert written.min() >= -1.05 * tolerance_um
     assert written.max() <= 0.05 * tolerance_um  # vertices rounded as printed
     assert not written[~ctx.moving].any()
-    with pytest.raises(ConfigError, match="no programs for controller 'fanuc'"):
-        plan.for_controller("fanuc")
 
 
 def _linuxcnc_recording(plan, program: str, noise_um: float, lead_s: float = 3.0) -> Trace:
@@ -67,7 +92,7 @@ def test_a_clean_recording_of_linuxcnc_has_no_finding(plan_f1500):
 
 @pytest.mark.slow
 def test_a_linuxcnc_user_plans_the_controls_timing_and_reads_a_clean_recording_as_clean(
-        tmp_path, default_text):
+        tmp_path, linuxcnc_plan):
     """Planned for LinuxCNC with its timing (``timing.control = "linuxcnc"``), a
     recording made from the control's own motion (``perturb --control linuxcnc``: the
     chords, ramps and blends of LinuxCNC 2.9's planner) is aligned to its start and
@@ -76,27 +101,19 @@ def test_a_linuxcnc_user_plans_the_controls_timing_and_reads_a_clean_recording_a
     import subprocess
     import sys
 
-    from conftest import edit
-
-    text = edit(default_text, "controllers", '["linuxcnc"]')
-    text = edit(text, "feed_mm_per_min", "1500.0")
-    cfg = tmp_path / "lc.toml"
-    cfg.write_text(text + '\n[timing]\ncontrol = "linuxcnc"\n')
-
     def run(*args):
         r = subprocess.run([sys.executable, "-m", "sdit_path", *args], capture_output=True,
                            text=True, timeout=900)
         assert r.returncode == 0, r.stderr
         return r.stdout
 
-    run("plan", str(cfg), "--out", str(tmp_path / "P"), "-q")
-    run("perturb", "--plan", str(tmp_path / "P"), "--program", "SDIT_E", "--control", "linuxcnc",
+    run("perturb", "--plan", str(linuxcnc_plan), "--program", "SDIT_E", "--control", "linuxcnc",
         "--noise-um", "0.02", "--lead-s", "4", "--clock-ppm", "30",
         "--out", str(tmp_path / "rec.csv"), "--truth", str(tmp_path / "truth.json"), "-q")
     truth = json.loads((tmp_path / "truth.json").read_text())
     runs = truth["control"]["runs"]
     assert len(runs) == 22 and all(abs(r["control_s"] / r["planned_s"] - 1) < 0.005 for r in runs)
-    run("diagnose", "--plan", str(tmp_path / "P"), "--program", "SDIT_E", "--measured",
+    run("diagnose", "--plan", str(linuxcnc_plan), "--program", "SDIT_E", "--measured",
         str(tmp_path / "rec.csv"), "--json", str(tmp_path / "d.json"), "-q")
     report = json.loads((tmp_path / "d.json").read_text())
     assert report["findings"] == []
