@@ -469,7 +469,7 @@ def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead
             model = load_error_set(model_file) if model_file else None
             control_runs = None
             if control:
-                from .sim.control_motion import control_plan
+                from .plan.control_motion import control_plan
 
                 plan, control_runs = control_plan(plan, program, control)
             ctx = build_context(plan, program)

@@ -15,8 +15,13 @@ analysis sees the plan and the recordings' files, nothing else; then it is score
   the case's own recordings named as another program.  Each must be refused with one
   line (no traceback) and no output folder.
 
+With ``--control linuxcnc`` the recordings are made from the motion of LinuxCNC 2.9's
+planner running the programs as written (``perturb --control linuxcnc``: chords,
+blends, ramps, slow-downs) and analysed with ``--controller linuxcnc`` (issue 47).
+
     python validation/analyse_blind.py [--plan-config tests/data/golden_small.toml] [--cases 10]
                                   [--seed 1] [--json OUT] [--work DIR] [--no-refusals]
+                                  [--control linuxcnc]
 """
 
 from __future__ import annotations
@@ -128,7 +133,7 @@ def visible_rms(plan, program: str, hidden) -> float:
 
 
 def run_case(k: int, seed: int, plan_dir: Path, work: Path,
-             others: dict[str, Path] | None = None) -> dict:
+             others: dict[str, Path] | None = None, control: str | None = None) -> dict:
     rng = np.random.default_rng([seed, k, 16])
     plan = load_plan(plan_dir)
     d = work / f"case{k}"
@@ -149,6 +154,8 @@ def run_case(k: int, seed: int, plan_dir: Path, work: Path,
                 f"{noise:.3f}", "--out", str(f), "--truth", str(d / f"{prog}.truth.json"), "-q"]
         for h in hidden:
             args += ["--effect", effect_text(h)]
+        if control:
+            args += ["--control", control]
         r = cli(*args)
         if r.returncode:
             return {"case": k, "error": r.stderr.strip()[-300:]}
@@ -160,6 +167,8 @@ def run_case(k: int, seed: int, plan_dir: Path, work: Path,
             "--no-pictures", "-q"]
     for f in files:
         args += ["--measured", str(f)]
+    if control:
+        args += ["--controller", control]
     r = cli(*args)
     seconds = time.time() - t0
     if r.returncode:
@@ -168,7 +177,8 @@ def run_case(k: int, seed: int, plan_dir: Path, work: Path,
     combos = rep["geometry"]["combinations"]
     z = [abs(c["estimate"] - sum(t["coefficient"] * truth.get(t["parameter"], 0.0)
                                  for t in c["terms"])) / c["std"] for c in combos]
-    out = {"case": k, "effect": name, "seconds": seconds, "combinations": len(combos),
+    out = {"case": k, "effect": name, "control": control, "seconds": seconds,
+           "combinations": len(combos),
            "within_3": int(sum(v <= 3.0 for v in z)), "z_max": max(z, default=0.0),
            "recordings": []}
     truth_rec = dict(recs)
@@ -264,6 +274,8 @@ def main() -> None:
     ap.add_argument("--work")
     ap.add_argument("--no-refusals", action="store_true",
                     help="skip the recordings of other plans and wrongly named programs")
+    ap.add_argument("--control", choices=["linuxcnc"], default=None,
+                    help="record the control's own motion and analyse with --controller")
     ap.add_argument("--rescore", type=Path, default=None,
                     help="Print the figures of an earlier --json file.")
     a = ap.parse_args()
@@ -283,7 +295,7 @@ def main() -> None:
     others = {} if a.no_refusals else other_plans(config, work)
     results = []
     for k in range(a.cases):
-        res = run_case(k, a.seed, plan_dir, work, others)
+        res = run_case(k, a.seed, plan_dir, work, others, a.control)
         results.append(res)
         if "error" in res:
             print(f"case {k:3d} {res.get('effect')}: ERROR {res['error']}", flush=True)

@@ -193,7 +193,7 @@ def _timing(plan: PlanFiles, done: list[Analysed]) -> tuple[dict, ...]:
     run's planned and control duration."""
     if not plan.control_motion:
         return tuple({"model": "plan"} for _ in done)
-    from ..sim.control_motion import run_table
+    from ..plan.control_motion import run_table
 
     base = plan.planned()
     return tuple({"model": "linuxcnc",

@@ -70,7 +70,7 @@ class PlanFiles:
     def trajectory(self, program: str) -> Samples:
         if program not in self._read:
             if self.control_motion:
-                from ..sim.control_motion import control_samples
+                from .control_motion import control_samples
 
                 base = replace(self, controller=None, _read={})
                 samples = control_samples(base, program, "linuxcnc")

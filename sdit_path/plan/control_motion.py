@@ -24,14 +24,14 @@ from scipy.spatial import cKDTree
 
 from ..errors import ConfigError
 from ..machine.kinematics import Kinematics
-from ..plan.files import PlanFiles
 from ..timing.trajectory import Samples, axis_values_rad
 
 CONTROLS = ("linuxcnc",)
 
 
-def control_samples(plan: PlanFiles, program: str, control: str = "linuxcnc") -> Samples:
-    """The motion of ``program`` as ``control`` runs it (see the module text)."""
+def control_samples(plan, program: str, control: str = "linuxcnc") -> Samples:
+    """The motion of ``program`` of ``plan`` (a :class:`~sdit_path.plan.files.PlanFiles`)
+    as ``control`` runs it (see the module text)."""
     if control not in CONTROLS:
         raise ConfigError("--control", f"{control!r}: expected one of {', '.join(CONTROLS)}")
     from ..timing.linuxcnc_tp import ControlLimits, simulate, stretches
@@ -101,8 +101,7 @@ def control_samples(plan: PlanFiles, program: str, control: str = "linuxcnc") ->
                    tuple(planned.axis_units))
 
 
-def control_plan(plan: PlanFiles, program: str, control: str = "linuxcnc"
-                 ) -> tuple[PlanFiles, list[dict]]:
+def control_plan(plan, program: str, control: str = "linuxcnc") -> tuple[object, list[dict]]:
     """``plan`` with ``program``'s trajectory replaced by the control's motion
     (:func:`control_samples`; nothing else read from the plan changes, and no program
     geometry is added on top: the motion is the program as written), and per stretch

@@ -12,7 +12,7 @@ import pytest
 
 from sdit_path.config import sample_path
 from sdit_path.plan.files import load_plan
-from sdit_path.sim.control_motion import control_samples, run_table
+from sdit_path.plan.control_motion import control_samples, run_table
 
 
 @pytest.fixture(scope="module")
