@@ -143,7 +143,10 @@ CAMPAIGNS = (
         "As above (the same seeds, geometry, effects and instrument), with every recording "
         "made from the motion of LinuxCNC 2.9's planner running the program as written "
         "(`perturb --control linuxcnc`: its chords, blends and short ramps instead of our "
-        "timed curve) and analysed with `--controller linuxcnc`; no refusals tried.",
+        "timed curve) and analysed with `--controller linuxcnc`; no refusals tried. The "
+        "recordings and the analysis share that model of the control: this checks the "
+        "analysis given the control's motion, not the model, which the LinuxCNC campaign "
+        "checks against the real control.",
         "How to read it: as above. The servo lag of case 0, which on our own timing the "
         "analysis names as a lag-or-smoothing pair, is not named here: its delay goes "
         "into the start (19-22 ms after the truth, within the 50 ms the score allows). "

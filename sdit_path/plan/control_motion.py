@@ -17,8 +17,6 @@ motion, so that effects, truth and reports name the segments the plan named.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -102,15 +100,12 @@ def control_samples(plan, program: str, control: str = "linuxcnc") -> Samples:
 
 
 def control_plan(plan, program: str, control: str = "linuxcnc") -> tuple[object, list[dict]]:
-    """``plan`` with ``program``'s trajectory replaced by the control's motion
-    (:func:`control_samples`; nothing else read from the plan changes, and no program
-    geometry is added on top: the motion is the program as written), and per stretch
-    of motion between standstills the planned and the control's duration (s)."""
-    samples = control_samples(plan, program, control)
-    table = run_table(plan.trajectory(program), samples)
-    replaced = replace(plan, controller=None, _read={**plan._read, program: samples},
-                       as_written=False)
-    return replaced, table
+    """``plan`` with its trajectories the control's motion (:func:`control_samples`;
+    nothing else read from the plan changes, and no program geometry is added on top:
+    the motion is the program as written), and per stretch of motion of ``program``
+    between standstills the planned and the control's duration (s)."""
+    moved = plan.moved_by(control)
+    return moved, run_table(plan.planned().trajectory(program), moved.trajectory(program))
 
 
 def run_times(samples: Samples) -> list[tuple[str, str, float]]:

@@ -34,9 +34,10 @@ class PlanFiles:
     #: which controller's programs the recordings come from (None: the first the plan
     #: lists); the expected reading follows the program as written for it
     controller: str | None = None
-    #: whether the trajectories are the plan's, to which the program as written adds
-    #: its own geometry (False where a trajectory is a control's motion of it already)
-    as_written: bool = True
+    #: the control whose own motion of the programs as written the trajectories are
+    #: (None: the plan's own trajectories, to which the program as written adds its
+    #: geometry); see :attr:`control_motion`
+    motion: str | None = None
     #: trajectories read so far (each file is read and checked once per loaded plan;
     #: its arrays are read-only)
     _read: dict = field(default_factory=dict, compare=False, repr=False)
@@ -55,25 +56,28 @@ class PlanFiles:
 
     @property
     def control_motion(self) -> bool:
-        """Whether the trajectories are the control's motion of the programs as written
+        """Whether the trajectories are a control's motion of the programs as written
         rather than the plan's: recordings of LinuxCNC (``--controller linuxcnc``) of a
-        plan timed by our jerk-limited model.  The control's planner
+        plan timed by our jerk-limited model, or ``perturb --control``.  The control's planner
         (:mod:`~sdit_path.timing.linuxcnc_tp`) gives its ramps, blends and slow-downs,
         which on a 5-axis program take up to twice the planned time per run."""
-        return (self.directory is not None and self.controller == "linuxcnc"
-                and self.config.timing.control != "linuxcnc")
+        return self.directory is not None and self.motion is not None
 
     def planned(self) -> "PlanFiles":
         """This plan with its own trajectories (not the control's motion)."""
-        return replace(self, controller=None, _read={}) if self.control_motion else self
+        return replace(self, controller=None, motion=None, _read={}) if self.motion else self
+
+    def moved_by(self, control: str) -> "PlanFiles":
+        """This plan with every program's trajectory the motion of ``control`` running
+        the program as written (:mod:`.control_motion`)."""
+        return replace(self, motion=control, _read={})
 
     def trajectory(self, program: str) -> Samples:
         if program not in self._read:
             if self.control_motion:
                 from .control_motion import control_samples
 
-                base = replace(self, controller=None, _read={})
-                samples = control_samples(base, program, "linuxcnc")
+                samples = control_samples(self.planned(), program, self.motion)
             else:
                 samples = self._load_trajectory(program)
             for f in fields(samples):
@@ -116,8 +120,9 @@ class PlanFiles:
         if name not in self.controllers:
             raise ConfigError(str(self.directory), f"no programs for controller {name!r}; "
                                                    f"this plan has {', '.join(self.controllers)}")
-        fresh = name == "linuxcnc" and self.config.timing.control != "linuxcnc"
-        return replace(self, controller=name, _read={} if fresh else self._read)
+        if name == "linuxcnc" and self.config.timing.control != "linuxcnc":
+            return replace(self.moved_by(name), controller=name)
+        return replace(self, controller=name, _read=self._read)
 
     @property
     def ran_on(self) -> str | None:

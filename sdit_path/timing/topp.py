@@ -190,12 +190,6 @@ class Jet:
     q2: np.ndarray
     q3: np.ndarray
 
-    def reversed(self) -> Jet:
-        """The same path travelled the other way (cells and their points in reverse;
-        odd derivatives change sign)."""
-        return Jet(1.0 - self.frac[::-1], -self.q1[::-1, ::-1], self.q2[::-1, ::-1],
-                   -self.q3[::-1, ::-1])
-
 
 def _head_tail_bound(h: float, jerk: float) -> float:
     """Largest |b'| at the inner end of a first or last cell of length ``h`` crossed
