@@ -111,6 +111,37 @@ def load(plan_dir: str | Path, program: str) -> PlanData:
                     df["phase"].to_numpy(object), float(entry["cycle_time_s"]))
 
 
+def load_motion(plan_dir: str | Path, program: str, motion_csv: str | Path) -> PlanData:
+    """The plan's machine, with the commanded motion a real control made of ``program``
+    instead of the plan's trajectory: ``validation/linuxcnc_run.py --motion-dir`` writes
+    it (control time from the plan's start, every commanded axis per 1 ms servo period;
+    a table-frame program commands the ball in the table, a 3-axis machine's axes).
+    The machine stands wherever the command does not move; the recording's program
+    lasts as long as the control took, its last dwell included."""
+    base = load(plan_dir, program)
+    import pandas as pd
+
+    df = pd.read_csv(motion_csv)
+    cols = []
+    for name, rot in zip(base.names, base.rotary):
+        col = df[f"axis_{name}"].to_numpy(float)
+        cols.append(np.radians(col) if rot else col)
+    q = np.column_stack(cols)
+    t = df["t_s"].to_numpy(float)
+    still = np.r_[True, np.all(np.diff(q, axis=0) == 0, axis=1)]
+    phase = np.where(still, "dwell", "cruise").astype(object)
+    # the control's last dwell: the programs end with one at the last node
+    dwell = float(tomllib.loads((Path(plan_dir) / "config.toml").read_text(encoding="utf-8"))
+                  .get("test", {}).get("dwell_s", 2.0))
+    n_end = int(round(dwell / float(np.median(np.diff(t)))))
+    t = np.r_[t, t[-1] + np.arange(1, n_end + 1) * float(np.median(np.diff(t)))]
+    q = np.vstack([q, np.repeat(q[-1:], n_end, axis=0)])
+    phase = np.r_[phase, np.full(n_end, "dwell", dtype=object)]
+    return PlanData(base.names, base.rotary, base.directions, base.points, base.workpiece,
+                    base.tool, base.tool_offset, base.pivot, base.length_mm, t, q, phase,
+                    float(t[-1]))
+
+
 # --------------------------------------------------------------------------- kinematics
 
 def _rot(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:

@@ -8,7 +8,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..diagnose.fitting import noise_estimate
-from ..diagnose.recording import AlignedRecording, align_recording, plausible_programs
+from ..diagnose.align import LOCAL_SCAN_EXPLAINED
+from ..diagnose.recording import AlignedRecording, align_by_runs, align_recording, \
+    plausible_programs
+from ..diagnose.runs import match_dwells, program_runs, still_stretches
 from ..errors import ConfigError, RecordingError
 from ..plan.files import PlanFiles
 from ..reading.context import Context, build_context
@@ -71,11 +74,128 @@ def dwell_score(plan: PlanFiles, program: str, still: np.ndarray) -> float:
     return float(np.max(hits - false))
 
 
+#: a recording's own run timing replaces the plan's where its alignment leaves at most
+#: this share of the residual the plan's timing leaves
+RUNS_BETTER = 0.95
+#: ... or, where the plan's timing explains the recording to its noise but places its
+#: start worse than :data:`TIMED_S`, where it leaves at most this much more (both at
+#: the noise: the runs' own timing is the better founded)
+RUNS_ALIKE = 0.02
+#: a start known this well (s, one standard uncertainty) by the plan's timing needs no
+#: run-by-run timing when that timing explains the recording to its noise
+TIMED_S = 0.02
+#: programs whose dwells match the recording's still stretches at most this much worse
+#: than the best one's are aligned run by run (the cost of :func:`match_dwells`)
+DWELL_COST_MARGIN = 20.0
+
+
 def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
           contexts: dict | None = None) -> tuple[AlignedRecording, str]:
     """The recording aligned to its program, and how the program was chosen.  Refuses
     (one line) a recording that fits no program of the plan, or fits another one better
-    than the program named."""
+    than the program named.
+
+    The plan's timing first (a start and a clock rate); where that leaves more than the
+    recording's noise or places its start no better than :data:`TIMED_S`, or is
+    refused, and the recording stands still where it dwells,
+    the recording's own timing run by run (:func:`align_by_runs`): from the plan's time
+    law and, unless the controller was named, from that of every control the plan wrote
+    programs for whose planner is modelled (LinuxCNC); the one that leaves the least
+    is kept when it leaves clearly less than the plan's timing."""
+    try:
+        rec, how = _match_planned(plan, trace, label, named, contexts)
+        refusal = None
+    except RecordingError as exc:
+        rec, how, refusal = None, "", exc
+    if rec is not None and rec.alignment.rms_um <= LOCAL_SCAN_EXPLAINED * rec.noise_um \
+            and rec.alignment.offset_std_s <= TIMED_S:
+        return rec, how
+    programs = [named] if named else _dwell_candidates(plan, trace)
+    if not programs:
+        if rec is None:
+            raise refusal
+        return rec, how
+    timed, refusals = [], []
+    for program in programs:
+        for motion in _time_laws(plan):
+            try:
+                timed.append(align_by_runs(plan, program, trace, label, motion))
+            except RecordingError as exc:
+                refusals.append(str(exc).removeprefix(f"{label}: "))
+    if not timed:
+        if rec is None:
+            raise RecordingError(f"{refusal}" + (f"; run by run: {refusals[0]}" if refusals else ""))
+        return rec, how
+    by_program: dict[str, AlignedRecording] = {}
+    for r in timed:
+        if r.program not in by_program or r.alignment.rms_um < by_program[r.program].alignment.rms_um:
+            by_program[r.program] = r
+    ranked = sorted(by_program.values(), key=lambda r: r.alignment.rms_um)
+    best = ranked[0]
+    explained = rec is not None and rec.alignment.rms_um <= LOCAL_SCAN_EXPLAINED * rec.noise_um
+    if rec is not None and best.alignment.rms_um > (1.0 + RUNS_ALIKE if explained else RUNS_BETTER) \
+            * rec.alignment.rms_um:
+        return rec, how
+    if len(ranked) > 1 and ranked[1].alignment.rms_um < 1.25 * best.alignment.rms_um:
+        raise RecordingError(
+            f"{label}: fits {best.program} and {ranked[1].program} alike run by run (alignment "
+            f"residual {best.alignment.rms_um:.2f} and {ranked[1].alignment.rms_um:.2f} um); name "
+            f"its program: --measured {best.program}={label}")
+    law = "the plan's time law" if best.motion is None else f"{best.motion}'s motion"
+    runs = f"timed run by run ({law}, {len(best.runs.planned)} runs between its dwells)"
+    plan_said = (f"; the plan's timing left {rec.alignment.rms_um:.2f} um" if rec is not None
+                 else f"; the plan's timing: {str(refusal).removeprefix(f'{label}: ')}")
+    first = "named" if named else f"recognised by its dwells; alignment residual " \
+                                  f"{best.alignment.rms_um:.2f} um"
+    return best, f"{first}; {runs}{plan_said}"
+
+
+def _time_laws(plan: PlanFiles) -> list[str | None]:
+    """The time laws a recording's runs are re-timed from: the plan's trajectories as
+    they are read (a named controller's motion included), and, unless a controller was
+    named, the motion of LinuxCNC where the plan wrote programs for it and timed them
+    otherwise."""
+    if plan.controller is not None:
+        return [plan.motion]
+    laws: list[str | None] = [None]
+    if "linuxcnc" in plan.controllers and plan.config.timing.control != "linuxcnc":
+        laws.append("linuxcnc")
+    return laws
+
+
+def _dwell_candidates(plan: PlanFiles, trace: Trace) -> list[str]:
+    """The programs whose dwells the recording's still stretches fit (in order, a run
+    taking half to four times its planned time) nearly as well as the best one's (none
+    where the recording holds fewer than three still stretches: nothing to time by)."""
+    t_m = np.asarray(trace.t_s, float)
+    y = np.asarray(trace.delta_l_um, float)
+    ok = np.isfinite(y)
+    noise = noise_estimate(y[ok], t_m[ok])
+    dwell = float(plan.config.test.dwell_s)
+    stretches = still_stretches(t_m, y, noise, 0.3 * dwell)
+    if len(stretches) < 3:
+        return []
+    span = float(t_m[-1] - t_m[0])
+    costs = {}
+    for program in plan.program_names:
+        traj = plan.trajectory(program)
+        if span < 0.5 * float(traj.t_s[-1]):
+            continue
+        runs = program_runs(np.asarray(traj.t_s), np.asarray(traj.phase, dtype=object),
+                            np.asarray(traj.segment, dtype=object))
+        found = match_dwells(runs, stretches, dwell)
+        if found is not None:
+            costs[program] = found[0]
+    if not costs:
+        return []
+    best = min(costs.values())
+    return sorted((p for p, c in costs.items() if c <= best + DWELL_COST_MARGIN),
+                  key=costs.get)[:2]
+
+
+def _match_planned(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
+                   contexts: dict | None = None) -> tuple[AlignedRecording, str]:
+    """:func:`match` with the plan's timing alone."""
     fits = plausible_programs(plan, trace)
     by_duration = [p for p, why in fits if not why]
     if named is not None and named not in plan.program_names:

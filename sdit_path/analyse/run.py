@@ -122,6 +122,12 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
                                  f"{used[rec.program]}); give each program once")
         used[rec.program] = label
         first.append((label, how, rec, trace))
+    # recordings timed run by run: their programs' trajectories re-timed as they showed
+    # (the contexts made while matching were of the plan's timing)
+    for _, _, rec, _ in first:
+        if rec.runs is not None:
+            plan = rec.retimed(plan)
+            contexts.pop(rec.program, None)
     # the geometry first from the recordings as aligned, so that the diagnosis looks at
     # what the geometry leaves (the effect library holds only a few kinds of geometry);
     # then the geometry again with what the diagnosis found
@@ -188,17 +194,33 @@ def _on_program_time(label: str, rec: AlignedRecording, trace: Trace, d: Diagnos
 
 
 def _timing(plan: PlanFiles, done: list[Analysed]) -> tuple[dict, ...]:
-    """Per recording, whose timing its program was read with: the plan's, or the
-    control's own (LinuxCNC's planner on a plan timed by our model), then with every
-    run's planned and control duration."""
-    if not plan.control_motion:
-        return tuple({"model": "plan"} for _ in done)
-    from ..plan.control_motion import run_table
+    """Per recording, whose timing its program was read with: the plan's, the control's
+    own (LinuxCNC's planner on a plan timed by our model), or the recording's own run by
+    run, then with every run's planned and measured duration (s, and its standard
+    uncertainty where the recording measured it)."""
+    out = []
+    for a in done:
+        runs = a.aligned.runs
+        if runs is not None:
+            own = None
+            if a.aligned.motion is not None:
+                from ..diagnose.runs import program_runs
 
-    base = plan.planned()
-    return tuple({"model": "linuxcnc",
-                  "runs": run_table(base.trajectory(a.program), plan.trajectory(a.program))}
-                 for a in done)
+                t = plan.planned().trajectory(a.program)
+                own = [b - s for s, b, _, _ in program_runs(
+                    np.asarray(t.t_s), np.asarray(t.phase, dtype=object),
+                    np.asarray(t.segment, dtype=object))]
+            out.append({"model": "recording", "from": a.aligned.motion or "plan",
+                        "runs": runs.as_table(own)})
+        elif plan.motion_of(a.program) is not None:
+            from ..plan.control_motion import run_table
+
+            out.append({"model": plan.motion_of(a.program),
+                        "runs": run_table(plan.planned().trajectory(a.program),
+                                          plan.trajectory(a.program))})
+        else:
+            out.append({"model": "plan"})
+    return tuple(out)
 
 
 def _result(done: list[Analysed], geometry: Identification,

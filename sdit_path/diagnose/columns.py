@@ -28,7 +28,7 @@ def expected_reading(plan: PlanFiles, ctx: Context, model: ErrorSet | None) -> n
     cfg = plan.config
     written = ctx.written_um if len(ctx.written_um) == ctx.n else np.zeros(ctx.n)
     if model is None:
-        if plan.control_motion:
+        if ctx.control_path:
             # the trajectory is the control's path (its chords): its own distance
             return (np.linalg.norm(ctx.ball_mm - ctx.pivot_mm, axis=1)
                     - cfg.ballbar.bar_length_mm) * 1e3

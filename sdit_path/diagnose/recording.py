@@ -14,7 +14,7 @@ program as planned, and its numbers are not printed as determined without saying
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -26,6 +26,9 @@ from ..reading.context import build_context
 from .columns import expected_reading
 from .effects.generic import alignment_columns
 from .fitting import noise_estimate
+from .timing import widened
+from .runs import RunTiming, first_timing, fit_runs, match_dwells, program_runs, \
+    still_stretches
 
 #: a residual this many times the recording's own noise (and 0.5 um above it) is not
 #: this program's recording as planned, or holds what the alignment model cannot
@@ -44,6 +47,19 @@ class AlignedRecording:
     noise_um: float
     trace: Trace
     warning: str | None
+    #: when the recording's own timing was taken run by run (:mod:`.runs`): when each
+    #: run began and ended, and the control whose motion it re-timed (None: the plan's)
+    runs: RunTiming | None = None
+    motion: str | None = None
+
+    def retimed(self, plan: PlanFiles) -> PlanFiles:
+        """``plan`` with this recording's program timed as the recording showed (as it
+        is when the plan's timing was kept)."""
+        if self.runs is None:
+            return plan
+        base = plan.planned() if self.motion is None else plan.planned().moved_by(self.motion)
+        end = float(base.trajectory(self.program).t_s[-1])
+        return plan.timed_as_recorded(self.program, self.motion, self.runs.retiming(end))
 
     def as_json(self) -> dict:
         a = self.alignment
@@ -190,3 +206,75 @@ def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
     if not math.isfinite(al.rms_um):
         raise RecordingError(f"{label}: the alignment failed (no finite residual)")
     return AlignedRecording(program, al, noise, aligned, None)
+
+
+#: a recording whose runs all take this many times their planned time or more (or this
+#: share of it or less), alike, ran at another feed: its runs are not re-timed
+FEED_RATIO = 1.3
+
+
+def align_by_runs(plan: PlanFiles, program: str, trace: Trace, label: str,
+                  motion: str | None = None) -> AlignedRecording:
+    """``trace`` aligned to ``program`` run by run (:mod:`.runs`): the recording's still
+    stretches matched to the program's dwells, every run re-timed between them and
+    placed by the reading, then the whole aligned as :func:`align_recording` does.
+    ``motion``: the control whose motion of the program is re-timed (None: the plan's
+    trajectory).  Refuses (one line) a recording whose still stretches do not fit the
+    program's dwells, or whose runs all took alike longer or shorter (another feed)."""
+    base = plan.planned() if motion is None else plan.planned().moved_by(motion)
+    if plan.controller:
+        base = replace(base, controller=plan.controller)
+    traj = base.trajectory(program)
+    t_m = np.asarray(trace.t_s, float)
+    y = np.asarray(trace.delta_l_um, float)
+    ok = np.isfinite(y)
+    noise = noise_estimate(y[ok], t_m[ok])
+    dwell = float(plan.config.test.dwell_s)
+    runs = program_runs(np.asarray(traj.t_s), np.asarray(traj.phase, dtype=object),
+                        np.asarray(traj.segment, dtype=object))
+    stretches = still_stretches(t_m, y, noise, 0.3 * dwell)
+    found = match_dwells(runs, stretches, dwell)
+    if found is None:
+        raise RecordingError(f"{label}: not a recording of {program}: its {len(stretches)} still "
+                             f"stretches do not fit the program's {len(runs) + 1} dwells in order")
+    timing = first_timing(runs, stretches, found[1], dwell)
+    ratios = np.array([m / p for p, m, _ in timing.durations() if p > 0])
+    told = np.array([a and b for a, b in timing.told])
+    if told.sum() >= 3:
+        r = ratios[told]
+        common = float(np.median(r))
+        if (common >= FEED_RATIO or common <= 1 / FEED_RATIO) and np.all(np.abs(r / common - 1) < 0.1):
+            raise RecordingError(
+                f"{label}: not a recording of {program} as planned: every run took {common:.2f} "
+                f"times its planned time: a recording at another feed or with a feed override? "
+                f"(plan at the feed that was run)")
+    end = float(traj.t_s[-1])
+    bctx = build_context(base, program)
+    X = pose_columns(base, bctx)
+    timing, _ = fit_runs(timing, bctx.t_s, X, t_m, y, dwell)
+    del bctx, X
+    retimed = plan.timed_as_recorded(program, motion, timing.retiming(end))
+    rec = align_recording(retimed, program, trace, label, build_context(retimed, program))
+    # the program starts a planned first dwell before its first run: as well known as
+    # the reading places that run's start (the alignment on the re-timed trajectory is
+    # consistent with the timing by construction, and states far less)
+    al = widened(rec.alignment, (timing.std_s[0][0], 0.0),
+                 "the first run's start, as the reading places it")
+    return replace(rec, alignment=al, runs=timing, motion=motion)
+
+
+def pose_columns(plan: PlanFiles, ctx) -> np.ndarray:
+    """``(n, m)``: what the reading holds as a function of the pose alone (the expected
+    reading, the set-up: a constant and the bar direction, and the geometry's pose
+    blocks), on ``ctx``'s grid: the model a time law is fitted with.  Nothing that
+    follows the time law (a lag, an acceleration) and nothing with a step (a reversal,
+    the start of motion): a fitted step pins a run's start where noise put it."""
+    expected = expected_reading(plan, ctx, None)
+    cols = [np.ones(ctx.n), ctx.u[:, 0], ctx.u[:, 1], ctx.u[:, 2],
+            alignment_columns(plan, ctx, pose_only=True)]
+    if np.ptp(expected) > 1e-3:
+        cols.insert(0, expected)
+    X = np.column_stack(cols)
+    keep = np.ptp(X, axis=0) > 1e-9
+    keep[0] = True
+    return X[:, keep]

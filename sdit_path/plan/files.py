@@ -38,6 +38,10 @@ class PlanFiles:
     #: (None: the plan's own trajectories, to which the program as written adds its
     #: geometry); see :attr:`control_motion`
     motion: str | None = None
+    #: per program, the timing its recording showed (``(program, motion, retiming)``:
+    #: the control whose motion it re-times, None for the plan's trajectory, and the
+    #: :class:`~sdit_path.timing.retime.Retiming`); see :meth:`timed_as_recorded`
+    retimed: tuple = ()
     #: trajectories read so far (each file is read and checked once per loaded plan;
     #: its arrays are read-only)
     _read: dict = field(default_factory=dict, compare=False, repr=False)
@@ -64,8 +68,33 @@ class PlanFiles:
         return self.directory is not None and self.motion is not None
 
     def planned(self) -> "PlanFiles":
-        """This plan with its own trajectories (not the control's motion)."""
-        return replace(self, controller=None, motion=None, _read={}) if self.motion else self
+        """This plan with its own trajectories (not the control's motion, nor the timing
+        of a recording)."""
+        if self.motion or self.retimed:
+            return replace(self, controller=None, motion=None, retimed=(), _read={})
+        return self
+
+    def motion_of(self, program: str) -> str | None:
+        """The control whose motion of the program as written ``program``'s trajectory
+        is (None: the plan's trajectory, to which the program as written adds its
+        geometry)."""
+        for name, motion, _ in self.retimed:
+            if name == program:
+                return motion if self.directory is not None else None
+        return self.motion if self.directory is not None else None
+
+    def timed_as_recorded(self, program: str, motion: str | None, retiming) -> "PlanFiles":
+        """This plan with ``program``'s trajectory the plan's (``motion`` None) or
+        ``motion``'s motion of it, re-timed run by run as its recording showed
+        (:func:`~sdit_path.timing.retime.retime`)."""
+        kept = tuple(r for r in self.retimed if r[0] != program)
+        return replace(self, retimed=kept + ((program, motion, retiming),),
+                       _read={k: v for k, v in self._read.items() if k != program}
+                       if motion == self.motion else {})
+
+    def retiming(self, program: str):
+        """``program``'s :class:`~sdit_path.timing.retime.Retiming`, or None."""
+        return next((r for name, _, r in self.retimed if name == program), None)
 
     def moved_by(self, control: str) -> "PlanFiles":
         """This plan with every program's trajectory the motion of ``control`` running
@@ -74,12 +103,17 @@ class PlanFiles:
 
     def trajectory(self, program: str) -> Samples:
         if program not in self._read:
-            if self.control_motion:
+            motion = self.motion_of(program)
+            if motion is not None:
                 from .control_motion import control_samples
 
-                samples = control_samples(self.planned(), program, self.motion)
+                samples = control_samples(self.planned(), program, motion)
             else:
                 samples = self._load_trajectory(program)
+            if self.retiming(program) is not None:
+                from ..timing.retime import retime
+
+                samples = retime(samples, self.retiming(program))
             for f in fields(samples):
                 value = getattr(samples, f.name)
                 if isinstance(value, np.ndarray):

@@ -65,6 +65,9 @@ class Context:
     #: controller less that along the planned path (LinuxCNC's chords; zeros for a
     #: controller that writes the curve): part of every expected reading
     written_um: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: the trajectory is a control's motion of the program as written (its chords
+    #: included), not the planned curve: its own distance from the pivot is the reading
+    control_path: bool = False
     #: arrays derived from the others, kept by the stages that read them (keyed by each)
     cache: dict = field(default_factory=dict)
 
@@ -226,4 +229,5 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
                    tuple(kin.names), linear, pivot, run_id.astype(int), v, acc, jerk, arc,
                    integral, arc[first], arc[last_idx][run_no], u_bed,
                    tuple(j for j in range(m) if float(np.sqrt(np.mean(gain[:, j] ** 2))) > 1e-6),
-                   written_um=written_deviation_um(plan, program, ball, moving))
+                   written_um=written_deviation_um(plan, program, ball, moving),
+                   control_path=plan.motion_of(program) is not None)

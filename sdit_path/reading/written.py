@@ -36,7 +36,7 @@ def written_deviation_um(plan, program: str, ball_mm: np.ndarray, moving: np.nda
     trajectory's ball positions ``ball_mm : (n, 3)``; zero where the machine stands
     (``moving`` False) and for controllers that write the curve itself."""
     out = np.zeros(len(ball_mm))
-    if plan.ran_on != "linuxcnc" or plan.control_motion:
+    if plan.ran_on != "linuxcnc" or plan.motion_of(program) is not None:
         return out  # the control's motion is the program as written already
     found = plan.program_text(program)
     if found is None:

@@ -18,10 +18,12 @@ def summary_text(report: dict) -> str:
     lines = [f"Analysis of {len(report['recordings'])} recording(s)."]
     for r in report["recordings"]:
         al = r["diagnosis"]["alignment"]
+        own = (r.get("timing") or {}).get("model") == "recording"
+        clock = ("clock rate within each run's measured time" if own else
+                 f"clock {al['clock_ppm']:+.1f} ppm (+- {_num(al['clock_std_ppm'])})")
         lines.append(f"  {r['file']}: {r['program']} ({r['matched']}); program starts at "
                      f"{al['offset_s']:.4f} s of the recording (+- {_ms(al['offset_std_s'])} ms), "
-                     f"clock {al['clock_ppm']:+.1f} ppm (+- {_num(al['clock_std_ppm'])}), noise "
-                     f"{r['diagnosis']['noise_um']:.2f} um")
+                     f"{clock}, noise {r['diagnosis']['noise_um']:.2f} um")
         lines.extend(_timing_lines(r.get("timing") or {"model": "plan"}))
     for w in report["warnings"]:
         lines.append(f"WARNING: {w}")
@@ -61,19 +63,33 @@ def summary_text(report: dict) -> str:
 
 
 def _timing_lines(timing: dict, within: float = 0.02) -> list[str]:
-    """How the recording's program was timed, and the runs whose control time is more
-    than ``within`` off the plan's."""
+    """How the recording's program was timed, and the runs whose measured (or the
+    control's) time is more than ``within`` off the plan's (and, measured, by more than
+    three standard uncertainties)."""
     if timing["model"] == "plan":
         return []
     runs = timing["runs"]
-    off = [r for r in runs if abs(r["control_s"] / r["planned_s"] - 1.0) > within]
-    head = (f"    timing: the control's own (LinuxCNC 2.9's planner on the program as written), "
-            f"not the plan's; {len(runs) - len(off)} of {len(runs)} runs within "
-            f"{within * 100:.0f} % of the planned time")
+    key = "measured_s" if timing["model"] == "recording" else "control_s"
+    off = [r for r in runs if abs(r[key] / r["planned_s"] - 1.0) > within
+           and abs(r[key] - r["planned_s"]) > 3 * r.get("std_s", 0.0)]
+    if timing["model"] == "recording":
+        law = ("the plan's time law" if timing.get("from", "plan") == "plan"
+               else f"{timing['from']}'s motion of the program as written")
+        head = (f"    timing: the recording's own, run by run (each run's start and end where "
+                f"the reading places them, {law} inside each run; durations +- one standard "
+                f"uncertainty, k=1); {len(runs) - len(off)} of {len(runs)} runs within "
+                f"{within * 100:.0f} % of the planned time or their uncertainty")
+    else:
+        head = (f"    timing: the control's own (LinuxCNC 2.9's planner on the program as "
+                f"written), not the plan's; {len(runs) - len(off)} of {len(runs)} runs within "
+                f"{within * 100:.0f} % of the planned time")
     out = [head + (":" if off else ".")]
     for r in off:
         name = r["from"] if r["from"] == r["to"] else f"{r['from']}..{r['to']}"
-        out.append(f"      run {name}: {r['control_s']:.2f} s, planned {r['planned_s']:.2f} s")
+        std = f" +- {r['std_s']:.2f}" if "std_s" in r else ""
+        model = (f" ({timing['from']}'s planner: {r['model_s']:.2f} s)" if "model_s" in r
+                 else "")
+        out.append(f"      run {name}: {r[key]:.2f}{std} s, planned {r['planned_s']:.2f} s{model}")
     return out
 
 
