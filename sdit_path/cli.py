@@ -443,7 +443,8 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, jobs, quie
 @click.option("--control", default=None, type=click.Choice(["linuxcnc"]),
               help="Make the recording from the motion of a real control running the "
                    "program as written for it (LinuxCNC 2.9's planner: its chords, ramps, "
-                   "blends and slow-downs) instead of the plan's trajectory.")
+                   "blends and slow-downs; its dwells 2-30 ms longer than programmed, by its "
+                   "wall clock) instead of the plan's trajectory.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress lines on stderr.")
 def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead_s, clock_ppm,
                     out_file, truth_file, control, quiet) -> None:
@@ -468,10 +469,12 @@ def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead
             plan = load_plan(plan_dir)
             model = load_error_set(model_file) if model_file else None
             control_runs = None
+            dwell_extra = None
             if control:
-                from .plan.control_motion import control_plan
+                from .plan.control_motion import control_plan, longer_dwells
 
                 plan, control_runs = control_plan(plan, program, control)
+                plan, dwell_extra = longer_dwells(plan, program, control, seed or 0)
             ctx = build_context(plan, program)
             hidden, rec = hidden_and_recording(ctx, effects, seed, noise_um=noise_um,
                                                lead_s=lead_s, clock_ppm=clock_ppm)
@@ -485,7 +488,8 @@ def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead
             if truth_file:
                 told = truth_json(truth)
                 if control_runs is not None:
-                    told["control"] = {"name": control, "runs": control_runs}
+                    told["control"] = {"name": control, "runs": control_runs,
+                                       "dwell_extra_ms": dwell_extra}
                 write_file(truth_file, json.dumps(told, indent=2) + "\n")
     except SditError as exc:
         _fail(exc)

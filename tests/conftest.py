@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import re
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -81,6 +82,17 @@ def config_with(default_text):
     def make(key: str, value: str, section: str | None = None):
         return parse_config(edit(default_text, key, value, section), "test.toml")
     return make
+
+
+@pytest.fixture(scope="session")
+def five_axis_plan(tmp_path_factory) -> Path:
+    """The bundled 5-axis sample, planned once per worker."""
+    d = tmp_path_factory.mktemp("bc")
+    r = subprocess.run([sys.executable, "-m", "sdit_path", "plan",
+                        str(sample_path("bc_table_5axis.toml")), "--out", str(d / "P"), "-q"],
+                       capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    return d / "P"
 
 
 def have_linuxcnc() -> bool:

@@ -110,18 +110,34 @@ def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
     if rec is not None and rec.alignment.rms_um <= LOCAL_SCAN_EXPLAINED * rec.noise_um \
             and rec.alignment.offset_std_s <= TIMED_S:
         return rec, how
-    programs = [named] if named else _dwell_candidates(plan, trace)
-    if not programs:
+    explained = rec is not None and rec.alignment.rms_um <= LOCAL_SCAN_EXPLAINED * rec.noise_um
+    laws = _time_laws(plan)
+    # (program, law, anchor) to try: where the plan's timing was accepted, a control's
+    # own time law from where it puts the runs (each run as long as that law says,
+    # every dwell as long as the reading says: a control's dwell follows its clock);
+    # where it does not explain the recording to its noise, every law also from the
+    # recording's still stretches matched to the dwells (a quiet reading holds still
+    # inside its runs too: where the plan's timing explains it, the stretches are not
+    # needed and not trusted)
+    trials = []
+    if rec is not None:
+        trials += [(rec.program, law, rec.alignment) for law in laws if law is not None]
+    if not explained:
+        trials += [(p, law, None) for p in ([named] if named else _dwell_candidates(plan, trace))
+                   for law in laws]
+    if not trials:
         if rec is None:
             raise refusal
         return rec, how
-    timed, refusals = [], []
-    for program in programs:
-        for motion in _time_laws(plan):
-            try:
-                timed.append(align_by_runs(plan, program, trace, label, motion))
-            except RecordingError as exc:
-                refusals.append(str(exc).removeprefix(f"{label}: "))
+    timed, refusals, anchored = [], [], set()
+    for program, motion, anchor in trials:
+        try:
+            timed.append(align_by_runs(plan, program, trace, label, motion, anchor))
+        except RecordingError as exc:
+            refusals.append(str(exc).removeprefix(f"{label}: "))
+            continue
+        if anchor is not None:
+            anchored.add(id(timed[-1]))
     if not timed:
         if rec is None:
             raise RecordingError(f"{refusal}" + (f"; run by run: {refusals[0]}" if refusals else ""))
@@ -132,8 +148,11 @@ def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
             by_program[r.program] = r
     ranked = sorted(by_program.values(), key=lambda r: r.alignment.rms_um)
     best = ranked[0]
-    explained = rec is not None and rec.alignment.rms_um <= LOCAL_SCAN_EXPLAINED * rec.noise_um
-    if rec is not None and best.alignment.rms_um > (1.0 + RUNS_ALIKE if explained else RUNS_BETTER) \
+    # a control's law from where the plan's timing puts the runs, each run as long as
+    # that law says, is taken where it fits as well; the recording's own stretches,
+    # where they fit clearly better
+    alike = explained or id(best) in anchored
+    if rec is not None and best.alignment.rms_um > (1.0 + RUNS_ALIKE if alike else RUNS_BETTER) \
             * rec.alignment.rms_um:
         return rec, how
     if len(ranked) > 1 and ranked[1].alignment.rms_um < 1.25 * best.alignment.rms_um:

@@ -27,8 +27,8 @@ from .columns import expected_reading
 from .effects.generic import alignment_columns
 from .fitting import noise_estimate
 from .timing import widened
-from .runs import RunTiming, first_timing, fit_runs, match_dwells, program_runs, \
-    still_stretches
+from .runs import RunTiming, anchored_timing, first_timing, fit_runs, match_dwells, \
+    program_runs, still_stretches
 
 #: a residual this many times the recording's own noise (and 0.5 um above it) is not
 #: this program's recording as planned, or holds what the alignment model cannot
@@ -208,19 +208,29 @@ def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
     return AlignedRecording(program, al, noise, aligned, None)
 
 
+#: each run keeps the duration a control's own planner gives it (LinuxCNC's, which
+#: gives the real control's motion to a servo period) to this share (one standard
+#: uncertainty): only the dwells, which follow the control's wall clock, are left to
+#: the reading (a quiet reading must not stretch a run by seconds to fit its noise)
+ANCHORED_LAW = 0.002
+
 #: a recording whose runs all take this many times their planned time or more (or this
 #: share of it or less), alike, ran at another feed: its runs are not re-timed
 FEED_RATIO = 1.3
 
 
 def align_by_runs(plan: PlanFiles, program: str, trace: Trace, label: str,
-                  motion: str | None = None) -> AlignedRecording:
+                  motion: str | None = None, anchor: Alignment | None = None
+                  ) -> AlignedRecording:
     """``trace`` aligned to ``program`` run by run (:mod:`.runs`): the recording's still
     stretches matched to the program's dwells, every run re-timed between them and
     placed by the reading, then the whole aligned as :func:`align_recording` does.
     ``motion``: the control whose motion of the program is re-timed (None: the plan's
-    trajectory).  Refuses (one line) a recording whose still stretches do not fit the
-    program's dwells, or whose runs all took alike longer or shorter (another feed)."""
+    trajectory).  ``anchor``: an alignment of the plan's own trajectory that explains the
+    recording; the runs then start where it puts them (a recording whose reading holds
+    still for seconds inside its runs has more still stretches than dwells).  Refuses
+    (one line) a recording whose still stretches do not fit the program's dwells, or
+    whose runs all took alike longer or shorter (another feed)."""
     base = plan.planned() if motion is None else plan.planned().moved_by(motion)
     if plan.controller:
         base = replace(base, controller=plan.controller)
@@ -230,28 +240,22 @@ def align_by_runs(plan: PlanFiles, program: str, trace: Trace, label: str,
     ok = np.isfinite(y)
     noise = noise_estimate(y[ok], t_m[ok])
     dwell = float(plan.config.test.dwell_s)
-    runs = program_runs(np.asarray(traj.t_s), np.asarray(traj.phase, dtype=object),
-                        np.asarray(traj.segment, dtype=object))
-    stretches = still_stretches(t_m, y, noise, 0.3 * dwell)
-    found = match_dwells(runs, stretches, dwell)
-    if found is None:
-        raise RecordingError(f"{label}: not a recording of {program}: its {len(stretches)} still "
-                             f"stretches do not fit the program's {len(runs) + 1} dwells in order")
-    timing = first_timing(runs, stretches, found[1], dwell)
-    ratios = np.array([m / p for p, m, _ in timing.durations() if p > 0])
-    told = np.array([a and b for a, b in timing.told])
-    if told.sum() >= 3:
-        r = ratios[told]
-        common = float(np.median(r))
-        if (common >= FEED_RATIO or common <= 1 / FEED_RATIO) and np.all(np.abs(r / common - 1) < 0.1):
-            raise RecordingError(
-                f"{label}: not a recording of {program} as planned: every run took {common:.2f} "
-                f"times its planned time: a recording at another feed or with a feed override? "
-                f"(plan at the feed that was run)")
+    runs = program_runs(*_labels(traj))
+    if anchor is not None:
+        # the base's runs from the anchor's place of the plan's first run
+        own = program_runs(*_labels(plan.trajectory(program)))
+        rate = 1.0 + anchor.clock_ppm * 1e-6
+        first = float(anchor.measured_time(np.array([own[0][0]]))[0])
+        timing = anchored_timing(runs, first - runs[0][0] * rate, rate)
+    else:
+        timing = _stretch_timing(runs, t_m, y, noise, dwell, program, label)
     end = float(traj.t_s[-1])
     bctx = build_context(base, program)
     X = pose_columns(base, bctx)
-    timing, _ = fit_runs(timing, bctx.t_s, X, t_m, y, dwell)
+    # a control's own planner gives each run's duration; the plan's time law, for a
+    # control of unknown rules, does not (unless anchored)
+    prior = ANCHORED_LAW if motion is not None or anchor is not None else None
+    timing, _ = fit_runs(timing, bctx.t_s, X, t_m, y, dwell, prior)
     del bctx, X
     retimed = plan.timed_as_recorded(program, motion, timing.retiming(end))
     rec = align_recording(retimed, program, trace, label, build_context(retimed, program))
@@ -265,16 +269,48 @@ def align_by_runs(plan: PlanFiles, program: str, trace: Trace, label: str,
 
 def pose_columns(plan: PlanFiles, ctx) -> np.ndarray:
     """``(n, m)``: what the reading holds as a function of the pose alone (the expected
-    reading, the set-up: a constant and the bar direction, and the geometry's pose
-    blocks), on ``ctx``'s grid: the model a time law is fitted with.  Nothing that
-    follows the time law (a lag, an acceleration) and nothing with a step (a reversal,
-    the start of motion): a fitted step pins a run's start where noise put it."""
+    reading, the set-up: a constant and the bar direction, its drift, and the
+    geometry's pose blocks), on ``ctx``'s grid: the model a time law is fitted with.
+    Nothing that follows the time law (a lag, an acceleration) and nothing with a step
+    (a reversal, the start of motion): a fitted step pins a run's start where noise put
+    it."""
     expected = expected_reading(plan, ctx, None)
+    # a drift of the set-up is slow in time (a thermal drift): left out, a time law
+    # fitted without it stretches the runs to follow it
     cols = [np.ones(ctx.n), ctx.u[:, 0], ctx.u[:, 1], ctx.u[:, 2],
-            alignment_columns(plan, ctx, pose_only=True)]
+            ctx.u_bed * (ctx.t_s / 3600.0)[:, None], alignment_columns(plan, ctx, pose_only=True)]
     if np.ptp(expected) > 1e-3:
         cols.insert(0, expected)
     X = np.column_stack(cols)
     keep = np.ptp(X, axis=0) > 1e-9
     keep[0] = True
     return X[:, keep]
+
+
+def _labels(traj) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return (np.asarray(traj.t_s), np.asarray(traj.phase, dtype=object),
+            np.asarray(traj.segment, dtype=object))
+
+
+def _stretch_timing(runs, t_m: np.ndarray, y: np.ndarray, noise: float, dwell: float,
+                    program: str, label: str) -> RunTiming:
+    """The runs placed by the recording's still stretches matched to the program's
+    dwells; refuses a recording whose stretches fit no order of them, or whose runs all
+    took alike longer or shorter (another feed)."""
+    stretches = still_stretches(t_m, y, noise, 0.3 * dwell)
+    found = match_dwells(runs, stretches, dwell)
+    timing = first_timing(runs, stretches, found[1], dwell) if found is not None else None
+    if timing is None:
+        raise RecordingError(f"{label}: not a recording of {program}: its {len(stretches)} still "
+                             f"stretches do not fit the program's {len(runs) + 1} dwells in order")
+    ratios = np.array([m / p for p, m, _ in timing.durations() if p > 0])
+    told = np.array([a and b for a, b in timing.told])
+    if told.sum() >= 3:
+        r = ratios[told]
+        common = float(np.median(r))
+        if (common >= FEED_RATIO or common <= 1 / FEED_RATIO) and np.all(np.abs(r / common - 1) < 0.1):
+            raise RecordingError(
+                f"{label}: not a recording of {program} as planned: every run took {common:.2f} "
+                f"times its planned time: a recording at another feed or with a feed override? "
+                f"(plan at the feed that was run)")
+    return timing

@@ -252,10 +252,11 @@ def _dp(planned, stretches, dwell_s, common, lo, hi):
 
 
 def first_timing(runs, stretches: list[Stretch], pairs: list[tuple[int, int]],
-                 dwell_s: float) -> RunTiming:
-    """Run starts and ends at the still stretches' edges; runs inside a stretch (their
-    reading did not move) placed in proportion to their planned times between the
-    neighbouring runs the recording places."""
+                 dwell_s: float) -> RunTiming | None:
+    """Run starts and ends at the still stretches' edges (each dwell in the middle of
+    its stretch); runs inside a stretch (their reading did not move) at their planned
+    times from the nearest run the stretches place; None where the knots so placed do
+    not follow one another."""
     planned = [(a, b) for a, b, _, _ in runs]
     # a still stretch holds its dwell and the slow first and last moments of the runs
     # either side (a run leaves and reaches its node at a crawl): the dwell sits about
@@ -284,23 +285,44 @@ def first_timing(runs, stretches: list[Stretch], pairs: list[tuple[int, int]],
         std.append((PRIOR_S, PRIOR_S))
     arr = np.array(meas)
     known = np.isfinite(arr[:, 0])
-    if known.any() and not known.all():
-        p = np.array(planned)
-        idx = np.flatnonzero(known)
-        # measured time as a function of program time through the known knots
-        src = np.r_[p[idx, 0], p[idx, 1]]
-        dst = np.r_[arr[idx, 0], arr[idx, 1]]
-        order = np.argsort(src)
-        for k in np.flatnonzero(~known):
-            arr[k] = np.interp(p[k], src[order], dst[order])
-            std[k] = (1.0, 1.0)
+    if not known.any():
+        return None
+    p = np.array(planned)
+    # runs inside a still stretch: placed at their planned times from the nearest run
+    # the stretches place (before it, else after it)
+    for k in np.flatnonzero(~known):
+        before = [i for i in np.flatnonzero(known) if i < k]
+        i = before[-1] if before else int(np.flatnonzero(known)[0])
+        arr[k] = arr[i, 0] + (p[k] - p[i, 0])
+        std[k] = (PRIOR_S, PRIOR_S)
     labels = tuple((f, t) for _, _, f, t in runs)
-    return RunTiming(tuple(map(tuple, planned)), tuple((float(a), float(b)) for a, b in arr),
-                     tuple(std), tuple((bool(k), bool(k)) for k in known), labels)
+    return _checked(RunTiming(tuple(map(tuple, planned)),
+                              tuple((float(a), float(b)) for a, b in arr), tuple(std),
+                              tuple((bool(k), bool(k)) for k in known), labels))
+
+
+def _checked(timing: RunTiming) -> RunTiming | None:
+    """``timing`` if its knots follow one another (every run and every dwell between
+    them lasting 50 ms or more), else None."""
+    flat = np.array([v for ab in timing.measured for v in ab])
+    return timing if np.all(np.diff(flat) > 0.05) else None
+
+
+def anchored_timing(runs, start_s: float, rate: float) -> RunTiming:
+    """Run starts and ends where a timing of the whole program puts them (the measured
+    time of the program's start and the ratio of measured to program time): the start
+    of a search that needs no still stretch."""
+    planned = [(a, b) for a, b, _, _ in runs]
+    return RunTiming(tuple(planned),
+                     tuple((start_s + a * rate, start_s + b * rate) for a, b in planned),
+                     tuple((PRIOR_S, PRIOR_S) for _ in planned),
+                     tuple((True, True) for _ in planned),
+                     tuple((f, t) for _, _, f, t in runs))
 
 
 def fit_runs(timing: RunTiming, t_grid: np.ndarray, X: np.ndarray, t_m: np.ndarray,
-             y: np.ndarray, dwell_s: float, iterations: int = 12, max_samples: int = 40_000,
+             y: np.ndarray, dwell_s: float, duration_prior: float | None = None,
+             iterations: int = 12, max_samples: int = 40_000,
              max_step_s: float = 0.3, widths_s: tuple[float, ...] = (1.0, 0.3, 0.1)
              ) -> tuple[RunTiming, float]:
     """Every run's measured start and end fitted together with the linear model ``X``
@@ -308,8 +330,10 @@ def fit_runs(timing: RunTiming, t_grid: np.ndarray, X: np.ndarray, t_m: np.ndarr
     they do not depend on the time law), Gauss-Newton.  Measured time maps to
     trajectory time piecewise linearly through the knots: moving a run's start
     stretches the whole run's content, so that the whole run, not its edge alone, says
-    when it began.  Priors: the still stretches' knots (:data:`PRIOR_S`), every dwell
-    as long as programmed (:data:`DWELL_SLACK_S`).  The reading and the model are first
+    when it began.  Priors: the knots where they start (:data:`PRIOR_S`), every dwell
+    as long as programmed (:data:`DWELL_SLACK_S`) and, with ``duration_prior``, every
+    run as long as the time law says, to that share of it (a control's own planner's
+    law: a quiet reading must not stretch a run by seconds to fit its noise).  The reading and the model are first
     compared smoothed over ``widths_s`` (a knot seconds off is in no reach of the
     unsmoothed reading's finest features), then as they are.  Returns the timing with
     the uncertainties of the knots (the model's columns projected out, the residual's
@@ -340,6 +364,14 @@ def fit_runs(timing: RunTiming, t_grid: np.ndarray, X: np.ndarray, t_m: np.ndarr
             D[r, 2 * r + 1], D[r, 2 * r + 2] = -1.0 / DWELL_SLACK_S, 1.0 / DWELL_SLACK_S
         rows.append(D)
         target.append(np.full(nM // 2 - 1, dwell_s / DWELL_SLACK_S))
+    if duration_prior is not None:
+        R = np.zeros((nM // 2, nM))
+        d0 = P[1::2] - P[0::2]  # as long as the time law says (the clock's ppm aside)
+        sd = duration_prior * d0 + 0.01
+        for r in range(nM // 2):
+            R[r, 2 * r], R[r, 2 * r + 1] = -1.0 / sd[r], 1.0 / sd[r]
+        rows.append(R)
+        target.append(d0 / sd)
     Pm, pt = np.vstack(rows), np.concatenate(target)
 
     def knots(Mv):
@@ -379,7 +411,10 @@ def fit_runs(timing: RunTiming, t_grid: np.ndarray, X: np.ndarray, t_m: np.ndarr
         else:
             Xw, yw = X, y_full[sub]
         tau, A, beta, e = evaluate(M, Xw, yw)
-        var = max(float(np.mean(e * e)), 1e-12)
+        # the residual's variance per independent sample: smoothed (and with what the
+        # model lacks) neighbouring samples repeat each other, and the priors must not
+        # be outweighed by a count of samples that are not independent
+        var = max(_effective_variance(e), 1e-12)
         cur = objective(e, M, var)
         for _ in range(iterations):
             J = jacobian(M, Xw, tau, beta)
@@ -408,8 +443,7 @@ def fit_runs(timing: RunTiming, t_grid: np.ndarray, X: np.ndarray, t_m: np.ndarr
     # ends to a millisecond modulo their period, and a fit cannot tell the periods apart
     J = jacobian(M, Xw, tau, beta)
     del Xw
-    rho = float(np.clip(np.corrcoef(e[:-1], e[1:])[0, 1], 0.0, 0.999)) if len(e) > 2 else 0.0
-    var = float(np.mean(e * e)) * (1 + rho) / (1 - rho)
+    var = _effective_variance(e)
     H = (J.T @ J - J.T @ A @ _pinv_gram(A.T @ A) @ A.T @ J) / var + Pm.T @ Pm
     cov = np.linalg.inv(H)
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
@@ -423,3 +457,10 @@ def fit_runs(timing: RunTiming, t_grid: np.ndarray, X: np.ndarray, t_m: np.ndarr
                     tuple((bool(told[2 * i]), bool(told[2 * i + 1])) for i in range(half)),
                     timing.labels, dur)
     return out, float(np.sqrt(np.mean(e * e)))
+
+
+def _effective_variance(e: np.ndarray) -> float:
+    """The residual's variance scaled by its correlation between neighbouring samples
+    (an AR(1) effective sample count)."""
+    rho = float(np.clip(np.corrcoef(e[:-1], e[1:])[0, 1], 0.0, 0.999)) if len(e) > 2 else 0.0
+    return float(np.mean(e * e)) * (1 + rho) / (1 - rho)

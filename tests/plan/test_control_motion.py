@@ -4,25 +4,11 @@ read with ``--controller linuxcnc`` takes that motion as its trajectory."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
-from sdit_path.config import sample_path
 from sdit_path.plan.files import load_plan
 from sdit_path.plan.control_motion import control_samples, run_table
-
-
-@pytest.fixture(scope="module")
-def five_axis_plan(tmp_path_factory):
-    d = tmp_path_factory.mktemp("bc")
-    r = subprocess.run([sys.executable, "-m", "sdit_path", "plan",
-                        str(sample_path("bc_table_5axis.toml")), "--out", str(d / "P"), "-q"],
-                       capture_output=True, text=True, timeout=900)
-    assert r.returncode == 0, r.stderr
-    return d / "P"
 
 
 @pytest.mark.slow
