@@ -112,23 +112,30 @@ def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
         return rec, how
     explained = rec is not None and rec.alignment.rms_um <= LOCAL_SCAN_EXPLAINED * rec.noise_um
     laws = _time_laws(plan)
-    # (program, law, anchor) to try: where the plan's timing was accepted, a control's
-    # own time law from where it puts the runs (each run as long as that law says,
-    # every dwell as long as the reading says: a control's dwell follows its clock);
-    # where it does not explain the recording to its noise, every law also from the
-    # recording's still stretches matched to the dwells (a quiet reading holds still
-    # inside its runs too: where the plan's timing explains it, the stretches are not
-    # needed and not trusted)
+    # (program, law, anchor) to try: a control's own time law from its own timing of
+    # the whole program (each run as long as that law says, every dwell as long as the
+    # reading says: a control's dwell follows its clock); where the plan's timing does
+    # not explain the recording to its noise, the plan's law from the recording's still
+    # stretches matched to the dwells, every run as long as the reading says (a quiet
+    # reading holds still inside its runs too: where the plan's timing explains it, the
+    # stretches are not needed and not trusted)
     trials = []
-    if rec is not None:
-        trials += [(rec.program, law, rec.alignment) for law in laws if law is not None]
-    if not explained:
-        trials += [(p, law, None) for p in ([named] if named else _dwell_candidates(plan, trace))
-                   for law in laws]
-    if not trials:
-        if rec is None:
-            raise refusal
-        return rec, how
+    dwelled = None if explained else ([named] if named else _dwell_candidates(plan, trace))
+    for law in laws:
+        if law is None:
+            if not explained:
+                trials += [(p, None, None) for p in dwelled]
+            continue
+        # a control's law: its own timing of the whole program (start and clock) first,
+        # of the program the plan's timing or the dwells found, then run by run from it
+        moved = plan.planned().moved_by(law)
+        for program in ([rec.program] if explained else
+                        list(dict.fromkeys([*dwelled, *([rec.program] if rec else [])]))):
+            anchor = _law_alignment(moved, program, trace, label)
+            if anchor is None and rec is not None and rec.program == program:
+                anchor = rec.alignment
+            if anchor is not None:
+                trials.append((program, law, anchor))
     timed, refusals, anchored = [], [], set()
     for program, motion, anchor in trials:
         try:
@@ -142,10 +149,13 @@ def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
         if rec is None:
             raise RecordingError(f"{refusal}" + (f"; run by run: {refusals[0]}" if refusals else ""))
         return rec, how
+    # per program the best fit; a control's law (each run as long as its planner says)
+    # before the plan's law with every run's duration free, unless that fits clearly
+    # better (a free run takes up what the model lacks, and states its time too well)
     by_program: dict[str, AlignedRecording] = {}
-    for r in timed:
-        if r.program not in by_program or r.alignment.rms_um < by_program[r.program].alignment.rms_um:
-            by_program[r.program] = r
+    for r in sorted(timed, key=lambda r: r.alignment.rms_um
+                    * (1.0 if r.motion is not None else 1.0 / RUNS_BETTER)):
+        by_program.setdefault(r.program, r)
     ranked = sorted(by_program.values(), key=lambda r: r.alignment.rms_um)
     best = ranked[0]
     # a control's law from where the plan's timing puts the runs, each run as long as
@@ -167,6 +177,15 @@ def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
     first = "named" if named else f"recognised by its dwells; alignment residual " \
                                   f"{best.alignment.rms_um:.2f} um"
     return best, f"{first}; {runs}{plan_said}"
+
+
+def _law_alignment(moved: PlanFiles, program: str, trace: Trace, label: str):
+    """The alignment (start, clock) of ``program`` of ``moved`` (a plan moved by a
+    control's planner), or None where that is refused."""
+    try:
+        return align_recording(moved, program, trace, label).alignment
+    except RecordingError:
+        return None
 
 
 def _time_laws(plan: PlanFiles) -> list[str | None]:

@@ -123,6 +123,15 @@ def stillness(t_s: np.ndarray, phase: np.ndarray, t_m: np.ndarray, y: np.ndarray
     return int(sum(d)), len(d), (float(np.mean(m)) if m else 0.0)
 
 
+def _unfit(plan: PlanFiles, program: str, trace: Trace) -> bool:
+    span = float(trace.t_s[-1] - trace.t_s[0]) if len(trace.t_s) > 1 else 0.0
+    try:
+        check_span(span, float(plan.trajectory(program).t_s[-1]))
+    except AlignmentError:
+        return True
+    return False
+
+
 def plausible_programs(plan: PlanFiles, trace: Trace) -> list[tuple[str, str]]:
     """(program, why not) for every program of the plan; ``why not`` is empty when the
     recording's duration admits it."""
@@ -145,9 +154,11 @@ def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
     its program (``ctx``: its context, if the caller has it).  Refuses (RecordingError,
     one line) a recording whose duration does not fit the program, naming the programs
     whose durations would."""
-    fits = plausible_programs(plan, trace)
-    why = dict(fits)
-    if why.get(program):
+    # the program's own duration first (every program's trajectory is read only to
+    # name the others in a refusal: a control's motion of each is minutes of work)
+    if _unfit(plan, program, trace):
+        fits = plausible_programs(plan, trace)
+        why = dict(fits)
         others = [p for p, w in fits if not w]
         raise RecordingError(
             f"{label}: not a recording of {program}: {why[program]}"
