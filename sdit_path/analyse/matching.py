@@ -15,7 +15,7 @@ from ..diagnose.runs import match_dwells, program_runs, still_stretches
 from ..errors import ConfigError, RecordingError
 from ..plan.files import PlanFiles
 from ..reading.context import Context, build_context
-from ..reading.trace import Trace
+from ..reading.trace import Trace, block_means, standstill_floor
 
 
 def program_context(plan: PlanFiles, program: str, contexts: dict | None) -> Context:
@@ -40,14 +40,38 @@ def still_windows(trace: Trace) -> np.ndarray | None:
     t = np.asarray(trace.t_s, float)
     y = np.asarray(trace.delta_l_um, float)
     ok = np.isfinite(y)
-    t, y = t[ok], y[ok]
-    if len(t) < 1000:
+    if ok.sum() < 1000:
         return None
-    noise = noise_estimate(y, t)
+    # on 50 ms means (a steady vibration of the structure averages out of them) against
+    # the spread a standstill shows in this recording
+    noise = standstill_floor(t, y, noise_estimate(y[ok], t[ok]))
+    t, y, _ = block_means(t, y)
     k = np.searchsorted(t, np.arange(t[0], t[-1], _WINDOW_S))
-    still = np.array([b - a >= 20 and float(np.std(y[a:b])) <= 1.15 * noise + 0.01
+    still = np.array([b - a >= 6 and float(np.std(y[a:b])) <= 1.15 * noise + 0.01
                       for a, b in zip(k[:-1], k[1:])], bool)
     return None if still.mean() > 0.6 else still
+
+
+def standstill_spread(trace: Trace) -> float:
+    """The recording's spread (um RMS) where it stands still (its 0.5 s windows that
+    :func:`still_windows` finds still): its noise and any steady vibration; 0 where it
+    has no such window."""
+    t = np.asarray(trace.t_s, float)
+    y = np.asarray(trace.delta_l_um, float)
+    still = still_windows(trace)
+    if still is None or not still.any():
+        return 0.0
+    ok = np.isfinite(y)
+    t, y = t[ok], y[ok]
+    k = np.searchsorted(t, np.arange(t[0], t[-1], _WINDOW_S))
+    spread = [float(np.std(y[a:b])) for (a, b), s in zip(zip(k[:-1], k[1:]), still) if s and b > a]
+    return float(np.median(spread)) if spread else 0.0
+
+
+def _beyond(rms_um: float, floor_um: float) -> float:
+    """What a residual of ``rms_um`` leaves beyond a floor (in quadrature; at least a
+    hundredth of the floor, so that two residuals at the floor read alike)."""
+    return float(np.sqrt(max(rms_um ** 2 - floor_um ** 2, (0.01 * floor_um) ** 2, 1e-12)))
 
 
 def _dwell_windows(plan: PlanFiles, program: str) -> tuple[np.ndarray, np.ndarray]:
@@ -107,10 +131,13 @@ def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
         refusal = None
     except RecordingError as exc:
         rec, how, refusal = None, "", exc
-    if rec is not None and rec.alignment.rms_um <= LOCAL_SCAN_EXPLAINED * rec.noise_um \
-            and rec.alignment.offset_std_s <= TIMED_S:
+    # explained: to the recording's noise, or to the spread it shows standing still
+    # where more (a steady vibration, which no timing explains)
+    floor = standstill_spread(trace)
+    explained = rec is not None and rec.alignment.rms_um <= LOCAL_SCAN_EXPLAINED * max(
+        rec.noise_um, floor)
+    if explained and rec.alignment.offset_std_s <= TIMED_S:
         return rec, how
-    explained = rec is not None and rec.alignment.rms_um <= LOCAL_SCAN_EXPLAINED * rec.noise_um
     laws = _time_laws(plan)
     # (program, law, anchor) to try: a control's own time law from its own timing of
     # the whole program (each run as long as that law says, every dwell as long as the
@@ -165,7 +192,8 @@ def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
     if rec is not None and best.alignment.rms_um > (1.0 + RUNS_ALIKE if alike else RUNS_BETTER) \
             * rec.alignment.rms_um:
         return rec, how
-    if len(ranked) > 1 and ranked[1].alignment.rms_um < 1.25 * best.alignment.rms_um:
+    if len(ranked) > 1 and _beyond(ranked[1].alignment.rms_um, floor) \
+            < 1.25 * _beyond(best.alignment.rms_um, floor):
         raise RecordingError(
             f"{label}: fits {best.program} and {ranked[1].program} alike run by run (alignment "
             f"residual {best.alignment.rms_um:.2f} and {ranked[1].alignment.rms_um:.2f} um); name "
@@ -300,7 +328,11 @@ def _match_planned(plan: PlanFiles, trace: Trace, label: str, named: str | None 
             + "; ".join(f"{p}: {why}" for p, why in refusals.items())[:600])
     ranked = sorted(results, key=lambda p: results[p].alignment.rms_um)
     best = ranked[0]
-    if len(ranked) > 1 and results[ranked[1]].alignment.rms_um < 1.25 * results[best].alignment.rms_um:
+    # told apart by what each leaves beyond the recording's own floor (its spread where
+    # it stands still: the noise and a steady vibration, which no program explains)
+    floor = standstill_spread(trace)
+    if len(ranked) > 1 and _beyond(results[ranked[1]].alignment.rms_um, floor) \
+            < 1.25 * _beyond(results[best].alignment.rms_um, floor):
         raise RecordingError(
             f"{label}: fits {best} and {ranked[1]} alike (alignment residual "
             f"{results[best].alignment.rms_um:.2f} and {results[ranked[1]].alignment.rms_um:.2f} um); "

@@ -225,7 +225,7 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     return best
 
 
-def _pinv_gram(G: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
+def pinv_gram(G: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
     """Pseudo-inverse of a Gram matrix (columns scaled to unit norm first, so that the
     cut-off is about the columns' directions, not their units)."""
     d = np.sqrt(np.maximum(np.diag(G), 1e-300))
@@ -237,7 +237,7 @@ def _pinv_gram(G: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
 def lsq(A: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Least squares through the normal equations (rank-revealing): the same answer as
     ``lstsq`` for the well-scaled, tall problems here, several times faster."""
-    return _pinv_gram(A.T @ A) @ (A.T @ y)
+    return pinv_gram(A.T @ A) @ (A.T @ y)
 
 
 def _fit_rms(X, t, tm, yy, offset_s, k):
@@ -258,7 +258,7 @@ def _timing_std(JJ: np.ndarray, r: np.ndarray) -> tuple[float, float]:
     n = len(r)
     rho = float(np.clip(np.corrcoef(r[:-1], r[1:])[0, 1], 0.0, 0.999)) if n > 2 else 0.0
     var = float(np.mean(r * r)) * (1 + rho) / (1 - rho)
-    M = JJ[-2:, -2:] - JJ[-2:, :-2] @ _pinv_gram(JJ[:-2, :-2]) @ JJ[:-2, -2:]
+    M = JJ[-2:, -2:] - JJ[-2:, :-2] @ pinv_gram(JJ[:-2, :-2]) @ JJ[:-2, -2:]
     bounds = (1.0, 1000.0)
     try:
         cov = np.linalg.inv(M) * var
@@ -294,7 +294,7 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
         # d tau / d offset = -1/(1+k); d tau / d k = -tau/(1+k)
         J = np.column_stack([Xs, -fd * inside / (1 + k), -fd * tau * inside / (1 + k) * 1e-6])
         JJ = J.T @ J  # once for the step and its uncertainty
-        sol = _pinv_gram(JJ) @ (J.T @ yy)
+        sol = pinv_gram(JJ) @ (J.T @ yy)
         r = yy - Xs @ beta
         std = _timing_std(JJ, r)
         d_off = float(np.clip(sol[-2], -max_step_s, max_step_s))

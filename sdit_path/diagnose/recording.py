@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import RecordingError
 from ..plan.files import PlanFiles
-from ..reading.trace import Trace
+from ..reading.trace import Trace, block_means, standstill_floor
 from .align import Alignment, AlignmentError, align, check_span
 from ..reading.context import build_context
 from .columns import expected_reading
@@ -97,7 +97,10 @@ def stillness(t_s: np.ndarray, phase: np.ndarray, t_m: np.ndarray, y: np.ndarray
     aligned as well as it goes, does not stand still at this program's dwells.  When
     the reading is still during much of the motion as well (a slow feed, a small set-up
     offset), a real recording is still at the dwells all the more: the dwells decide
-    either way (the share in the motion is returned for the caller to see)."""
+    either way (the share in the motion is returned for the caller to see).  A dwell
+    counts as still where its second half is, about a straight line: a machine that
+    rings, creeps or drifts during its dwells is still recording its program; and it
+    is judged on 50 ms means, so that a steady vibration does not hide a standstill."""
     dwell = (phase == "dwell").astype(np.int8)
     edge = np.diff(np.r_[0, dwell, 0])
     starts, ends = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1) - 1
@@ -108,17 +111,23 @@ def stillness(t_s: np.ndarray, phase: np.ndarray, t_m: np.ndarray, y: np.ndarray
     width = float(np.median([b - a for a, b in spans]))
     motion = [(0.5 * (b0 + a1) - width / 2, 0.5 * (b0 + a1) + width / 2)
               for (_, b0), (a1, _) in zip(spans[:-1], spans[1:]) if a1 - b0 > width + 2 * margin_s]
-    ok = np.isfinite(y)
-    t_ok, y_ok = t_m[ok], y[ok]
-    limit = 1.5 * noise_um + 0.05
+    # judged on 50 ms means: a steady vibration of the structure averages out
+    limit = 1.5 * standstill_floor(t_m, y, noise_um) + 0.05
+    t_ok, y_ok, _ = block_means(t_m, y)
 
-    def still(a: float, b: float) -> bool | None:
+    def still(a: float, b: float, settled: bool = False) -> bool | None:
         lo, hi = np.searchsorted(t_ok, al.measured_time(np.array([a, b])))
-        if hi - lo < 20:
+        if hi - lo < 6:
             return None
-        return bool(np.std(y_ok[lo:hi]) <= limit)
+        v = y_ok[lo:hi]
+        if settled:  # about a straight line: a creep or a drift is a standstill too
+            x = t_ok[lo:hi] - t_ok[lo]
+            v = v - np.polyval(np.polyfit(x, v, 1), x)
+        return bool(np.std(v) <= limit)
 
-    d = [v for v in (still(a, b) for a, b in spans) if v is not None]
+    # a dwell judged on its second half: a machine that rings after the stop (a mode
+    # the deceleration excites) has settled by then, and is still this program
+    d = [v for v in (still(0.5 * (a + b), b, True) for a, b in spans) if v is not None]
     m = [v for v in (still(a, b) for a, b in motion) if v is not None]
     return int(sum(d)), len(d), (float(np.mean(m)) if m else 0.0)
 

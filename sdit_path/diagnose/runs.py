@@ -23,8 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..reading.context import sample_at
+from ..reading.trace import block_means, standstill_floor
 from ..timing.retime import Retiming
-from .align import lsq
+from .align import lsq, pinv_gram
 
 #: the stillness test's block (s)
 BLOCK_S = 0.1
@@ -119,12 +120,14 @@ def still_stretches(t_m: np.ndarray, y: np.ndarray, noise_um: float, least_s: fl
     """Stretches of at least ``least_s`` where the reading stands still: every window of
     ``window_s`` (stepped by :data:`BLOCK_S`) whose straight-line fit has no slope the
     noise cannot explain (3 sigma) and whose scatter about it is
-    the noise's; overlapping still windows at one level join, a single window that fails
-    between two at the same level is bridged (the test fails by chance now and then)."""
-    ok = np.isfinite(y)
-    t, v = t_m[ok], y[ok]
-    if len(t) < 100:
+    the noise's (both on 50 ms means, out of which a steady vibration averages);
+    overlapping still windows at one level join, a single window that fails between two
+    at the same level is bridged (the test fails by chance now and then)."""
+    if np.isfinite(y).sum() < 100:
         return []
+    # on 50 ms means: a steady vibration of the structure averages out of them
+    noise_um = standstill_floor(t_m, y, noise_um)
+    t, v, _ = block_means(t_m, y)
     starts = np.arange(t[0], t[-1] - window_s, BLOCK_S)
     lo = np.searchsorted(t, starts)
     hi = np.searchsorted(t, starts + window_s)
@@ -135,7 +138,7 @@ def still_stretches(t_m: np.ndarray, y: np.ndarray, noise_um: float, least_s: fl
     cty = np.r_[0.0, np.cumsum((t - t[0]) * v)]
     cyy = np.r_[0.0, np.cumsum(v * v)]
     n = (hi - lo).astype(float)
-    good = n >= 20
+    good = n >= 6
     n = np.maximum(n, 1.0)
     st, stt = c1[hi] - c1[lo], c2[hi] - c2[lo]
     sy, sty, syy = cy[hi] - cy[lo], cty[hi] - cty[lo], cyy[hi] - cyy[lo]
@@ -340,8 +343,6 @@ def fit_runs(timing: RunTiming, t_grid: np.ndarray, X: np.ndarray, t_m: np.ndarr
     correlation in time allowed for) and the fit's RMS (um)."""
     from scipy.ndimage import uniform_filter1d
 
-    from .align import _pinv_gram
-
     P = np.array([v for ab in timing.planned for v in ab], float)
     M = np.array([v for ab in timing.measured for v in ab], float)
     M0 = M.copy()
@@ -424,7 +425,7 @@ def fit_runs(timing: RunTiming, t_grid: np.ndarray, X: np.ndarray, t_m: np.ndarr
             nA = A.shape[1]
             G[nA:, nA:] += Pm.T @ Pm
             g[nA:] -= Pm.T @ (Pm @ M - pt)
-            step = np.clip((_pinv_gram(G) @ g)[nA:], -max_step_s, max_step_s)
+            step = np.clip((pinv_gram(G) @ g)[nA:], -max_step_s, max_step_s)
             moved = False
             for _half in range(6):
                 trial = M + step
@@ -444,7 +445,7 @@ def fit_runs(timing: RunTiming, t_grid: np.ndarray, X: np.ndarray, t_m: np.ndarr
     J = jacobian(M, Xw, tau, beta)
     del Xw
     var = _effective_variance(e)
-    H = (J.T @ J - J.T @ A @ _pinv_gram(A.T @ A) @ A.T @ J) / var + Pm.T @ Pm
+    H = (J.T @ J - J.T @ A @ pinv_gram(A.T @ A) @ A.T @ J) / var + Pm.T @ Pm
     cov = np.linalg.inv(H)
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     half = nM // 2
