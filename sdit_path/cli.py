@@ -445,16 +445,19 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, jobs, quie
                    "program as written for it (LinuxCNC 2.9's planner: its chords, ramps, "
                    "blends and slow-downs; its dwells 2-30 ms longer than programmed, by its "
                    "wall clock) instead of the plan's trajectory.")
+@click.option("--dwell-extra-ms", default="2,30", show_default=True,
+              help="With --control: each dwell lasts longer than programmed by a seeded "
+                   "amount in LO,HI ms (a control's wall clock); 0,0 for exact dwells.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress lines on stderr.")
 def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead_s, clock_ppm,
-                    out_file, truth_file, control, quiet) -> None:
+                    out_file, truth_file, control, dwell_extra_ms, quiet) -> None:
     """Make a realistic measured trace of PROGRAM with hidden effects."""
     import json
     from pathlib import Path
 
     from .reading.context import build_context
     from .errormodel.errorset import load_error_set
-    from .errors import OutputError
+    from .errors import ConfigError, OutputError
     from .output import write_file
     from .plan.files import load_plan
     from .reading.recording import measured_csv
@@ -474,7 +477,16 @@ def perturb_command(plan_dir, program, model_file, effects, seed, noise_um, lead
                 from .plan.control_motion import control_plan, longer_dwells
 
                 plan, control_runs = control_plan(plan, program, control)
-                plan, dwell_extra = longer_dwells(plan, program, control, seed or 0)
+                try:
+                    lo, hi = (float(v) for v in dwell_extra_ms.split(","))
+                except ValueError:
+                    raise ConfigError("--dwell-extra-ms", f"{dwell_extra_ms[:40]!r}: expected "
+                                                          f"LO,HI in ms, e.g. 2,30") from None
+                _in_range("--dwell-extra-ms", lo, 0, 1000)
+                _in_range("--dwell-extra-ms", hi, lo, 1000)
+                if hi > 0:
+                    plan, dwell_extra = longer_dwells(plan, program, control, seed or 0,
+                                                      (lo * 1e-3, hi * 1e-3))
             ctx = build_context(plan, program)
             hidden, rec = hidden_and_recording(ctx, effects, seed, noise_um=noise_um,
                                                lead_s=lead_s, clock_ppm=clock_ppm)

@@ -54,14 +54,15 @@ def still_windows(trace: Trace) -> np.ndarray | None:
 
 def standstill_spread(trace: Trace) -> float:
     """The recording's spread (um RMS) where it stands still (its 0.5 s windows that
-    :func:`still_windows` finds still): its noise and any steady vibration; 0 where it
-    has no such window."""
+    :func:`still_windows` finds still): its noise and any steady vibration; its noise
+    where it stands still nearly throughout or nowhere."""
     t = np.asarray(trace.t_s, float)
     y = np.asarray(trace.delta_l_um, float)
     still = still_windows(trace)
-    if still is None or not still.any():
-        return 0.0
     ok = np.isfinite(y)
+    if still is None or not still.any():
+        # still nearly throughout (or nowhere): its noise is all it shows standing
+        return noise_estimate(y[ok], t[ok]) if ok.sum() > 10 else 0.0
     t, y = t[ok], y[ok]
     k = np.searchsorted(t, np.arange(t[0], t[-1], _WINDOW_S))
     spread = [float(np.std(y[a:b])) for (a, b), s in zip(zip(k[:-1], k[1:]), still) if s and b > a]

@@ -98,9 +98,9 @@ def stillness(t_s: np.ndarray, phase: np.ndarray, t_m: np.ndarray, y: np.ndarray
     the reading is still during much of the motion as well (a slow feed, a small set-up
     offset), a real recording is still at the dwells all the more: the dwells decide
     either way (the share in the motion is returned for the caller to see).  A dwell
-    counts as still where its second half is, about a straight line: a machine that
-    rings, creeps or drifts during its dwells is still recording its program; and it
-    is judged on 50 ms means, so that a steady vibration does not hide a standstill."""
+    counts as still where its second half is: a machine that rings after the stop is
+    still recording its program; and it is judged on 50 ms means against the spread a
+    standstill shows in this recording, so that a steady vibration does not hide it."""
     dwell = (phase == "dwell").astype(np.int8)
     edge = np.diff(np.r_[0, dwell, 0])
     starts, ends = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1) - 1
@@ -115,19 +115,15 @@ def stillness(t_s: np.ndarray, phase: np.ndarray, t_m: np.ndarray, y: np.ndarray
     limit = 1.5 * standstill_floor(t_m, y, noise_um) + 0.05
     t_ok, y_ok, _ = block_means(t_m, y)
 
-    def still(a: float, b: float, settled: bool = False) -> bool | None:
+    def still(a: float, b: float) -> bool | None:
         lo, hi = np.searchsorted(t_ok, al.measured_time(np.array([a, b])))
         if hi - lo < 6:
             return None
-        v = y_ok[lo:hi]
-        if settled:  # about a straight line: a creep or a drift is a standstill too
-            x = t_ok[lo:hi] - t_ok[lo]
-            v = v - np.polyval(np.polyfit(x, v, 1), x)
-        return bool(np.std(v) <= limit)
+        return bool(np.std(y_ok[lo:hi]) <= limit)
 
     # a dwell judged on its second half: a machine that rings after the stop (a mode
     # the deceleration excites) has settled by then, and is still this program
-    d = [v for v in (still(0.5 * (a + b), b, True) for a, b in spans) if v is not None]
+    d = [v for v in (still(0.5 * (a + b), b) for a, b in spans) if v is not None]
     m = [v for v in (still(a, b) for a, b in motion) if v is not None]
     return int(sum(d)), len(d), (float(np.mean(m)) if m else 0.0)
 
@@ -272,9 +268,11 @@ def align_by_runs(plan: PlanFiles, program: str, trace: Trace, label: str,
     end = float(traj.t_s[-1])
     bctx = build_context(base, program)
     X = pose_columns(base, bctx)
-    # a control's own planner gives each run's duration; the plan's time law, for a
-    # control of unknown rules, does not (unless anchored)
-    prior = ANCHORED_LAW if motion is not None or anchor is not None else None
+    # a control's own planner gives each run's duration (a plan timed by LinuxCNC's
+    # planner too); the plan's time law, for a control of unknown rules, does not
+    # (unless anchored)
+    planner = motion is not None or plan.config.timing.control == "linuxcnc"
+    prior = ANCHORED_LAW if planner or anchor is not None else None
     timing, _ = fit_runs(timing, bctx.t_s, X, t_m, y, dwell, prior)
     del bctx, X
     retimed = plan.timed_as_recorded(program, motion, timing.retiming(end))

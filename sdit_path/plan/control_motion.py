@@ -148,10 +148,11 @@ def _machine_values(pos: np.ndarray, axes: tuple[str, ...], kin: Kinematics, tab
 DWELL_EXTRA_S = (0.002, 0.030)
 
 
-def longer_dwells(plan, program: str, control: str, seed: int) -> tuple[object, list[float]]:
+def longer_dwells(plan, program: str, control: str, seed: int,
+                  extra_s: tuple[float, float] = DWELL_EXTRA_S) -> tuple[object, list[float]]:
     """``plan`` with ``program``'s motion by ``control`` (as :func:`control_plan` gives
     it) whose dwells between runs each last longer than programmed by a seeded amount
-    within :data:`DWELL_EXTRA_S`, and those amounts (ms)."""
+    within ``extra_s``, and those amounts (ms)."""
     from ..timing.retime import Retiming
 
     samples = plan.trajectory(program)
@@ -159,7 +160,7 @@ def longer_dwells(plan, program: str, control: str, seed: int) -> tuple[object, 
     edges = np.flatnonzero(np.diff(np.r_[0, moving.astype(int), 0]))
     t = np.asarray(samples.t_s, float)
     starts, ends = t[edges[::2]], t[np.minimum(edges[1::2], len(t) - 1)]
-    extra = np.random.default_rng([seed, 47]).uniform(*DWELL_EXTRA_S, max(len(starts) - 1, 0))
+    extra = np.random.default_rng([seed, 47]).uniform(*extra_s, max(len(starts) - 1, 0))
     src, dst, shift = [0.0], [0.0], 0.0
     for k, (a, b) in enumerate(zip(starts, ends)):
         if k:

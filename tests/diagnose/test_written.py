@@ -107,8 +107,9 @@ def test_a_linuxcnc_user_plans_the_controls_timing_and_reads_a_clean_recording_a
         assert r.returncode == 0, r.stderr
         return r.stdout
 
+    # the dwells exactly as programmed: the control's own timing, nothing else
     run("perturb", "--plan", str(linuxcnc_plan), "--program", "SDIT_E", "--control", "linuxcnc",
-        "--noise-um", "0.02", "--lead-s", "4", "--clock-ppm", "30",
+        "--dwell-extra-ms", "0,0", "--noise-um", "0.02", "--lead-s", "4", "--clock-ppm", "30",
         "--out", str(tmp_path / "rec.csv"), "--truth", str(tmp_path / "truth.json"), "-q")
     truth = json.loads((tmp_path / "truth.json").read_text())
     runs = truth["control"]["runs"]
