@@ -248,8 +248,7 @@ def _dwell_candidates(plan: PlanFiles, trace: Trace) -> list[str]:
         traj = plan.trajectory(program)
         if span < 0.5 * float(traj.t_s[-1]):
             continue
-        runs = program_runs(np.asarray(traj.t_s), np.asarray(traj.phase, dtype=object),
-                            np.asarray(traj.segment, dtype=object))
+        runs = program_runs(traj)
         found = match_dwells(runs, stretches, dwell)
         if found is not None:
             costs[program] = found[0]

@@ -206,10 +206,7 @@ def _timing(plan: PlanFiles, done: list[Analysed]) -> tuple[dict, ...]:
             if a.aligned.motion is not None:
                 from ..diagnose.runs import program_runs
 
-                t = plan.planned().trajectory(a.program)
-                own = [b - s for s, b, _, _ in program_runs(
-                    np.asarray(t.t_s), np.asarray(t.phase, dtype=object),
-                    np.asarray(t.segment, dtype=object))]
+                own = [b - s for s, b, _, _ in program_runs(plan.planned().trajectory(a.program))]
             out.append({"model": "recording", "from": a.aligned.motion or "plan",
                         "runs": runs.as_table(own)})
         elif plan.motion_of(a.program) is not None:

@@ -256,10 +256,10 @@ def align_by_runs(plan: PlanFiles, program: str, trace: Trace, label: str,
     ok = np.isfinite(y)
     noise = noise_estimate(y[ok], t_m[ok])
     dwell = float(plan.config.test.dwell_s)
-    runs = program_runs(*_labels(traj))
+    runs = program_runs(traj)
     if anchor is not None:
         # the base's runs from the anchor's place of the plan's first run
-        own = program_runs(*_labels(plan.trajectory(program)))
+        own = program_runs(plan.trajectory(program))
         rate = 1.0 + anchor.clock_ppm * 1e-6
         first = float(anchor.measured_time(np.array([own[0][0]]))[0])
         timing = anchored_timing(runs, first - runs[0][0] * rate, rate)
@@ -303,11 +303,6 @@ def pose_columns(plan: PlanFiles, ctx) -> np.ndarray:
     keep = np.ptp(X, axis=0) > 1e-9
     keep[0] = True
     return X[:, keep]
-
-
-def _labels(traj) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return (np.asarray(traj.t_s), np.asarray(traj.phase, dtype=object),
-            np.asarray(traj.segment, dtype=object))
 
 
 def _stretch_timing(runs, t_m: np.ndarray, y: np.ndarray, noise: float, dwell: float,

@@ -71,7 +71,7 @@ class RunTiming:
         for (a, b) in self.planned:
             src += [a, b]
         src.append(end_s)
-        first = self.measured[0][0] - self.planned[0][0]
+        first = self.start_s()
         for (a, b) in self.measured:
             dst += [a - first, b - first]
         dst = [0.0, *dst, dst[-1] + end_s - self.planned[-1][1]]
@@ -105,10 +105,13 @@ class RunTiming:
         return rows
 
 
-def program_runs(t_s: np.ndarray, phase: np.ndarray, segment: np.ndarray
-                 ) -> list[tuple[float, float, str, str]]:
-    """The program's runs between standstills: start, end (program time), first and
+def program_runs(samples) -> list[tuple[float, float, str, str]]:
+    """The runs between standstills of a trajectory (a
+    :class:`~sdit_path.timing.trajectory.Samples`): start, end (its time), first and
     last segment."""
+    t_s = np.asarray(samples.t_s, float)
+    phase = np.asarray(samples.phase, dtype=object)
+    segment = np.asarray(samples.segment, dtype=object)
     moving = (phase != "dwell") & (phase != "reposition")
     edges = np.flatnonzero(np.diff(np.r_[0, moving.astype(int), 0]))
     return [(float(t_s[max(a - 1, 0)]), float(t_s[min(b, len(t_s) - 1)]), str(segment[a]),
