@@ -78,6 +78,8 @@ def run_case(job) -> dict:
         seconds = time.perf_counter() - t0
         base = {"program": program, "case": k, "effect": effect or "clean",
                 "excited": bool(truth["excited"]), "noise_um": truth["noise_um"],
+                "excited_beyond_setup": bool(truth["excited_beyond_setup"]),
+                "visible_beyond_setup_rms_um": truth["visible_beyond_setup_rms_um"],
                 "seconds": round(seconds, 1)}
         if r.returncode:
             return {**base, "refused": r.stderr.strip().splitlines()[-1][:400] if r.stderr.strip()
@@ -139,9 +141,16 @@ def table(results: list[dict]) -> None:
     print(f"clean with no finding:            {frac(clean, 'no_finding')}")
     single = [r for r in done if r["effect"] != "clean" and r["excited"]]
     print(f"effect named first (shown above the noise): {frac(single, 'top1')}")
+    beyond = [r for r in single if r.get("excited_beyond_setup")]
+    if any("excited_beyond_setup" in r for r in single):
+        print(f"  of which above the noise beyond what a set-up change reproduces: "
+              f"{frac(beyond, 'top1')}")
     for r in single:
         if not r.get("top1"):
-            print(f"  {r['program']} case {r['case']} {r['effect']}: found {r['found'][:3]}")
+            why = "" if "excited_beyond_setup" not in r else (
+                f" (beyond a set-up change: {r['visible_beyond_setup_rms_um']:.3f} um, "
+                f"noise {r['noise_um']:.3f} um)")
+            print(f"  {r['program']} case {r['case']} {r['effect']}: found {r['found'][:3]}{why}")
     for r in clean:
         if not r.get("no_finding"):
             print(f"  {r['program']} case {r['case']} clean: found {r['found'][:3]}")

@@ -208,6 +208,7 @@ def _timing(plan: PlanFiles, done: list[Analysed]) -> tuple[dict, ...]:
 
                 own = [b - s for s, b, _, _ in program_runs(plan.planned().trajectory(a.program))]
             out.append({"model": "recording", "from": a.aligned.motion or "plan",
+                        "placed_std_s": round(runs.placed_std_s(), 4),
                         "runs": runs.as_table(own)})
         elif plan.motion_of(a.program) is not None:
             from ..plan.control_motion import run_table

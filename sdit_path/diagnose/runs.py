@@ -88,6 +88,11 @@ class RunTiming:
         return [(b - a, mb - ma, s) for (a, b), (ma, mb), s
                 in zip(self.planned, self.measured, sd)]
 
+    def placed_std_s(self) -> float:
+        """How well the reading placed the runs: the median standard uncertainty of the
+        runs' starts and ends (s, k=1)."""
+        return float(np.median([v for pair in self.std_s for v in pair]))
+
     def as_table(self, planned_s: list[float] | None = None) -> list[dict]:
         """Per run: its first and last segment, the plan's duration (``planned_s``: the
         plan's own where the runs re-time a control's motion, whose duration is then

@@ -90,7 +90,18 @@ def _timing_lines(timing: dict, within: float = 0.02) -> list[str]:
         model = (f" ({timing['from']}'s planner: {r['model_s']:.2f} s)" if "model_s" in r
                  else "")
         out.append(f"      run {name}: {r[key]:.2f}{std} s, planned {r['planned_s']:.2f} s{model}")
+    if timing["model"] == "recording" and timing.get("placed_std_s"):
+        out.append(_placed_line(timing["placed_std_s"]))
     return out
+
+
+def _placed_line(std_s: float) -> str:
+    """What the run-by-run timing's precision leaves readable: a ringing at f is blurred
+    by a timing error of std sigma by exp(-(2 pi f sigma)^2 / 2), 0.6 at f = 1/(2 pi sigma)."""
+    f = 1.0 / (2 * math.pi * max(std_s, 1e-6))
+    return (f"    the reading places the runs' starts and ends to +- {std_s * 1e3:.1f} ms "
+            f"(median, k=1): what changes faster than that is blurred, a structural mode "
+            f"ringing above {f:.0f} Hz is read only as its deflection, not its ringing")
 
 
 def _ms(v) -> str:

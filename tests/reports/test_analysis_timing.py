@@ -32,3 +32,17 @@ def test_the_plans_timing_says_nothing_and_a_controls_motion_says_whose():
         {"from": "E1-1", "to": "E1-3", "planned_s": 6.33, "control_s": 12.45}]})
     assert "LinuxCNC 2.9's planner" in lines[0]
     assert lines[1].strip() == "run E1-1..E1-3: 12.45 s, planned 6.33 s"
+
+
+def test_how_well_the_runs_are_placed_says_what_it_blurs():
+    runs = [{"from": "E1-1", "to": "E1-3", "planned_s": 6.33, "measured_s": 6.33,
+             "std_s": 0.01, "told": True}]
+    coarse = _timing_lines({"model": "recording", "from": "plan", "placed_std_s": 0.016,
+                            "runs": runs})
+    fine = _timing_lines({"model": "recording", "from": "plan", "placed_std_s": 0.0008,
+                          "runs": runs})
+    assert "+- 16.0 ms" in coarse[-1] and "above 10 Hz" in coarse[-1]
+    assert "+- 0.8 ms" in fine[-1] and "above 199 Hz" in fine[-1]
+    # an older analysis.json without the figure: nothing made up
+    assert not any("places the runs" in x for x in
+                   _timing_lines({"model": "recording", "from": "plan", "runs": runs}))
