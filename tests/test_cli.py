@@ -137,7 +137,7 @@ def test_no_terminal_prints_a_line_per_stage(tmp_path):
 
 @pytest.mark.parametrize("key,value,code,expected", [
     ("bar_length_mm", "0.0", 2, "ballbar.bar_length_mm: expected a value > 0"),
-    ("controllers", '["fanuc31"]', 2, "known controllers: linuxcnc, sinumerik840d"),
+    ("controllers", '["fanuc31"]', 2, "known controllers: fanuc, fanuc_nurbs, haas, heidenhain, linuxcnc"),
     ("feed_mm_per_min", "0", 2, "test.feed_mm_per_min: expected a value > 0"),
 ])
 def test_bad_input_is_one_line_without_traceback(tmp_path, key, value, code, expected):

@@ -143,6 +143,45 @@ def max_radial_deviation(curve: BSplineCurve, centre_mm: np.ndarray, radius_mm: 
 # ------------------------------------------------------------------------------ fitting
 
 
+def rounded_on_sphere(curve: BSplineCurve, centre_mm: np.ndarray, radius_mm: float,
+                      decimals: int, sweeps: int = 4, per_interval: int = 8) -> BSplineCurve:
+    """``curve`` with its control points on the ``decimals`` grid (the ends kept as
+    they are), each inner one chosen among the 27 grid neighbours of its rounding so
+    that the curve where it acts keeps nearest the sphere (greedy sweeps, four): a
+    control that reads 4 decimals then keeps a cubic a few hundredths of a micrometre
+    from the sphere where plain rounding leaves up to 0.09 um.  Rational curves are
+    rounded plainly."""
+    from scipy.interpolate import BSpline
+
+    from ..fixed_point import round_to_decimals
+
+    ctrl = round_to_decimals(curve.control_points_mm, decimals)
+    ctrl[0], ctrl[-1] = curve.control_points_mm[0], curve.control_points_mm[-1]
+    if curve.weights is not None or len(ctrl) < 3:
+        return BSplineCurve(curve.degree, curve.knots, ctrl, curve.weights)
+    knots = curve.interval_knots
+    frac = np.linspace(0.0, 1.0, per_interval, endpoint=False)
+    u = np.r_[(knots[:-1, None] + np.diff(knots)[:, None] * frac[None, :]).ravel(), knots[-1]]
+    B = BSpline.design_matrix(u, curve.knots, curve.degree)
+    Bc, Br = B.tocsc(), B.tocsr()
+    step = 10.0 ** (-decimals)
+    neigh = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)],
+                     float) * step
+    for _ in range(sweeps):
+        for j in range(1, len(ctrl) - 1):
+            lo, hi = Bc.indptr[j], Bc.indptr[j + 1]
+            rows, w = Bc.indices[lo:hi], Bc.data[lo:hi]
+            others = Br[rows] @ ctrl - w[:, None] * ctrl[j]
+            base = np.round(ctrl[j] / step) * step
+            cand = base[None, :] + neigh
+            pts = others[None, :, :] + w[None, :, None] * cand[:, None, :]
+            err = np.abs(np.linalg.norm(pts - centre_mm, axis=2) - radius_mm).max(axis=1)
+            ctrl[j] = cand[int(np.argmin(err))]
+    inner = round_to_decimals(ctrl[1:-1], decimals)
+    ctrl[1:-1] = inner
+    return BSplineCurve(curve.degree, curve.knots, ctrl, None)
+
+
 @dataclass(frozen=True, slots=True)
 class FittedRun:
     """A fitted chain of pieces.  ``piece_ranges`` are parameter ranges on ``curve``."""

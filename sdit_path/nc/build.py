@@ -10,14 +10,15 @@ from pathlib import PurePath
 import numpy as np
 
 from ..config import Config
+from ..errors import PlanError
 from ..geometry.hemisphere import Hemisphere
 from ..fixed_point import round_to_decimals
 from ..geometry.paths import Dwell as PathDwell
-from ..geometry.nurbs import BSplineCurve
+from ..geometry.nurbs import BSplineCurve, max_radial_deviation, rounded_on_sphere
 from ..geometry.paths import LayerPath, Remount, Run
 from ..machine.kinematics import Kinematics
 from ..machine.schedule import RotarySchedule
-from .chords import ChordLimits, CornerModel, run_chords
+from .chords import ChordLimits, CornerModel, on_grid, run_chords
 from .five_axis import AxisTrack, round_axis_values, machine_chords, machine_spline, rotary_controls
 from .program import Comment, Dwell, LinearMove, PolylineMove, Program, ProgramStop, SplineMove
 from .text import program_name
@@ -53,31 +54,61 @@ def _knot_interval(curve: BSplineCurve, run: Run) -> float:
     return max(round(run.length_mm / intervals, 3), 0.001)
 
 
-def program_frame(config: Config, path_form: str) -> str:
-    """``table``, ``traori`` or ``machine``: see :class:`~sdit_path.nc.program.Program`."""
+def program_frame(config: Config, path_form: str, five_axis: str | None = None) -> str:
+    """``table``, ``traori``, ``tcpm`` or ``machine``: see
+    :class:`~sdit_path.nc.program.Program`.  ``five_axis``: how the control takes a
+    five-axis path (``tcpm``: the ball centre in the table frame with the rotary
+    words, its tool-centre-point control on; None: ``post.five_axis_mode`` for a
+    native spline, machine axis values for chords)."""
     if config.test.rotary.schedule != "moving":
         return "table"
+    if five_axis is not None:
+        return five_axis
     if path_form == "spline" and config.post.five_axis_mode == "traori":
         return "traori"
     return "machine"
 
 
+def machine_grid_floor_mm(kin: Kinematics, track: AxisTrack, hemi: Hemisphere,
+                          decimals: int) -> float:
+    """The tolerance a machine-axis program on a coarse grid can hold: twice how far the
+    ball moves when every axis is off by half a step of its last decimal (their root
+    sum of squares: a rotary axis' 0.0001 deg moves a ball 200 mm from it by 0.17 um),
+    at the worst of the hemisphere's nodes, rounded up to 0.01 um."""
+    half = 0.5 * 10.0 ** (-decimals)
+    pts = np.array([n.position_mm for n in hemi.nodes])
+    q, _ = track.q(pts, None)
+    base = kin.forward(q)
+    move = np.zeros(len(pts))
+    for i, ax in enumerate(kin.axes):
+        dq = np.zeros(q.shape[1])
+        dq[i] = math.radians(half) if ax.is_rotary else half
+        move += np.linalg.norm(kin.forward(q + dq) - base, axis=1) ** 2
+    return math.ceil(2.0 * float(np.sqrt(move.max())) * 1e5) / 1e5
+
+
 def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller: str,
-                  path_form: str, version: str, corners: CornerModel | None = None
+                  path_form: str, version: str, corners: CornerModel | None = None,
+                  max_decimals: int = 9, five_axis: str | None = None, number: int = 1
                   ) -> BuiltProgram:
     """Neutral program of one layer for a controller whose native path form is
     ``path_form`` (``"spline"`` or ``"chords"``); ``corners`` says when that control
-    joins two chords at the feed (chords only; None: any turn)."""
+    joins two chords at the feed (chords only; None: any turn); ``max_decimals``: the
+    most decimals of a millimetre the control reads (``post.decimals`` beyond it are
+    not written); ``five_axis``: see :func:`program_frame`."""
     post, test = config.post, config.test
-    decimals = post.decimals
+    decimals = min(post.decimals, max_decimals)
     feed = test.feed_mm_per_min
-    frame = program_frame(config, path_form)
+    frame = program_frame(config, path_form, five_axis)
     kin = Kinematics(config.machine)
     track = AxisTrack(kin, RotarySchedule(config, kin))
     rot_names = tuple(kin.names[i] for i in kin.rotary)
     lin = list(kin.linear)
     locked = tuple((n, round(math.degrees(v), decimals) + 0.0) for n, v in test.rotary.locked_rad)
-    spline_tol = post.spline_tolerance_um * 1e-3
+    # a spline's control points on a coarse grid (a control reading 4 decimals): the
+    # nodes it passes through lie within half a step of the sphere at best
+    spline_tol = max(post.spline_tolerance_um * 1e-3, 0.5 * 10.0 ** (-decimals)
+                     if decimals < post.decimals else 0.0)
     chord_tol = post.chord_tolerance_um * 1e-3
     curve_tol = post.chord_curve_tolerance_um * 1e-3
     accel = [kin.axes[i].max_acceleration for i in kin.linear]
@@ -88,14 +119,25 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
     body: list = []
     carry = None
 
+    grid_floor = (machine_grid_floor_mm(kin, track, hemi, decimals)
+                  if frame == "machine" and decimals < post.decimals else 0.0)
+    chord_tol, spline_tol = max(chord_tol, grid_floor), max(spline_tol, grid_floor)
+    written_tol = chord_tol if path_form == "chords" else spline_tol
+
+    def on_sphere(p_table: np.ndarray) -> np.ndarray:
+        """A node (or a point of the sphere) as the program writes it: rounded, and
+        where the grid is coarse for the tolerance, the grid point nearest the sphere."""
+        return on_grid(p_table, hemi.centre_mm, hemi.radius_mm, decimals, written_tol)
+
     def words(p_table: np.ndarray, carry_in):
         """A point of the table frame as program words: (xyz, rotary words, carry)."""
         if frame == "table":
-            return round_to_decimals(p_table, decimals), locked, carry_in
+            return on_sphere(p_table), locked, carry_in
         q, carry_out = track.q(np.asarray(p_table)[None, :], carry_in)
         rot = tuple((n, round(math.degrees(q[0, kin.index[n]]), decimals) + 0.0) for n in rot_names)
-        xyz = p_table if frame == "traori" else q[0, lin]
-        return round_to_decimals(xyz, decimals), rot, carry_out
+        if frame in ("traori", "tcpm"):
+            return on_sphere(p_table), rot, carry_out
+        return round_to_decimals(q[0, lin], decimals), rot, carry_out
 
     def note(run: Run, devs) -> None:
         for piece, d in zip(run.pieces, devs):
@@ -105,7 +147,7 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
     body.append(Comment(f"start at {where}: mount the ballbar here"))
     xyz, rot, carry = words(path.start_mm, carry)
     body.append(LinearMove(xyz, feed, rot))
-    current_table = round_to_decimals(path.start_mm, decimals)
+    current_table = on_sphere(path.start_mm)
     current_q = None
     if frame == "machine":
         current_q = kin.inverse(current_table[None, :], track.angles(current_table[None, :], None)[0])[0]
@@ -124,7 +166,7 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
                 body.append(LinearMove(xyz, feed, rot))
             carry = target_carry
             body.append(ProgramStop("mount the ballbar here, then cycle start"))
-            current_table = round_to_decimals(item.to_mm, decimals)
+            current_table = on_sphere(item.to_mm)
             if frame == "machine":
                 current_q = round_axis_values(kin.inverse(current_table[None, :],
                                                  track.angles(current_table[None, :], carry)[0])[0],
@@ -138,10 +180,25 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
             if frame == "traori":
                 ctrl, carry = rotary_controls(run.curve, track, carry, decimals)
                 rotary = tuple((n, ctrl[n]) for n in rot_names)
-            body.append(SplineMove(run.curve, run_f, _knot_interval(run.curve, run),
-                                   _labels(run.curve, run), rotary))
-            note(run, [p.max_radial_deviation_mm for p in run.pieces])
-            current_table = run.curve.control_points_mm[-1]
+            curve = run.curve
+            devs = [p.max_radial_deviation_mm for p in run.pieces]
+            if decimals < post.decimals:  # a control that reads fewer decimals than fitted
+                ctrl = curve.control_points_mm.copy()
+                ctrl[0] = current_table
+                ctrl[-1] = on_sphere(ctrl[-1])
+                curve = rounded_on_sphere(BSplineCurve(curve.degree, curve.knots, ctrl,
+                                                       curve.weights),
+                                          hemi.centre_mm, hemi.radius_mm, decimals)
+                devs = max_radial_deviation(curve, hemi.centre_mm, hemi.radius_mm,
+                                            [(p.u_start, p.u_end) for p in run.pieces])
+                if max(devs) > spline_tol:
+                    raise PlanError(f"{label}: the spline's control points at {decimals} decimals "
+                                    f"leave the sphere by {max(devs) * 1e3:.4f} um, over the "
+                                    f"{spline_tol * 1e3:g} um limit")
+            body.append(SplineMove(curve, run_f, _knot_interval(curve, run),
+                                   _labels(curve, run), rotary))
+            note(run, devs)
+            current_table = curve.control_points_mm[-1]
         elif frame == "machine" and path_form == "spline":
             qcurve, devs, carry = machine_spline(run, track, carry, hemi.centre_mm, hemi.radius_mm,
                                                  spline_tol, decimals, label)
@@ -164,7 +221,7 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
             note(run, devs)
             current_q = q[-1]
         else:  # table-frame chords
-            end_node = (round_to_decimals(hemi.node(run.end_node).position_mm, decimals)
+            end_node = (on_sphere(hemi.node(run.end_node).position_mm)
                         if run.end_node else run.curve.control_points_mm[-1])
             limits = ChordLimits(radial_mm=chord_tol, curve_mm=curve_tol)
             if corners is not None:
@@ -178,7 +235,11 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
                 from_curve[piece.id] = max(from_curve.get(piece.id, 0.0), off)
             turns.append((chords.max_turn_rad, limits.turn_rad, chords.sharp_corners))
             current_table = chords.points_mm[-1]
-            body.append(PolylineMove(chords.points_mm, run_f, chords.labels))
+            if frame == "tcpm":  # the rotary words of every vertex, the ball kept by the control
+                q, carry = track.q(chords.points_mm, carry)
+                rotary = tuple((n, round_to_decimals(np.degrees(q[:, kin.index[n]]), decimals) + 0.0)
+                               for n in rot_names)
+            body.append(PolylineMove(chords.points_mm, run_f, chords.labels, rotary))
 
     layer = next(la for la in hemi.layers if la.name == path.base_layer)
     worst_um = max(deviation.values()) * 1e3
@@ -186,15 +247,24 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
     frames = {"table": f"ball centre in the table frame, work offset {post.work_offset}",
               "traori": f"ball centre in the table frame, work offset {post.work_offset}, "
                         f"TRAORI on, rotary axes {' '.join(rot_names)} programmed with it",
+              "tcpm": f"ball centre in the table frame, work offset {post.work_offset}, "
+                      f"tool centre point control on, rotary axes {' '.join(rot_names)} "
+                      f"as machine angles",
               "machine": f"machine axis values {' '.join(kin.names)}, work offset must be zero"}
     extra = ""
     if path_form == "spline":
+        limit = (f"{post.spline_tolerance_um:g} um" if spline_tol <= post.spline_tolerance_um * 1e-3
+                 else f"{spline_tol * 1e3:g} um, what the control's increment allows, as "
+                      f"post.spline_tolerance_um {post.spline_tolerance_um:g} um lies below it")
         form = (f"path: B-spline degree {post.spline_degree}, uniform knots; max radial deviation "
-                f"from the sphere as emitted {worst_um:.4f} um (limit {post.spline_tolerance_um:g} um;"
+                f"from the sphere as emitted {worst_um:.4f} um (limit {limit};"
                 f" needs a control resolution of {decimals} decimals)")
     else:
+        tol = (f"{post.chord_tolerance_um:g} um" if chord_tol <= post.chord_tolerance_um * 1e-3
+               else f"{chord_tol * 1e3:g} um, what the axes' increment allows, as "
+                    f"post.chord_tolerance_um {post.chord_tolerance_um:g} um lies below it")
         form = (f"path: 3-D G1 chords; max radial deviation from the sphere as emitted "
-                f"{worst_um:.4f} um (tolerance {post.chord_tolerance_um:g} um, sagitta included)")
+                f"{worst_um:.4f} um (tolerance {tol}, sagitta included)")
         if from_curve:
             extra = (f"chords from the planned curve at most "
                      f"{max(from_curve.values()) * 1e3:.4f} um "
@@ -230,9 +300,9 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
          if not path.omitted else
          f"left out as infeasible: {', '.join(path.omitted)} (the bar is remounted around them)"),
     ) + ((post.comment,) if post.comment else ())
-    program = Program(name=name, controller=controller, layer=path.layer, header=header,
+    program = Program(name=name, controller=controller, layer=path.layer, number=number,
+                      header=header,
                       work_offset=post.work_offset, decimals=decimals, frame=frame,
-                      tolerance_mm=(post.spline_tolerance_um if path_form == "spline"
-                                    else post.chord_tolerance_um) * 1e-3,
+                      tolerance_mm=spline_tol if path_form == "spline" else chord_tol,
                       items=tuple(body))
     return BuiltProgram(program, deviation)

@@ -166,13 +166,51 @@ def _spacing(curve: BSplineCurve, u0: float, u1: float, limits: ChordLimits,
     return u, minimum_filter1d(want, size=2 * window + 1, mode="nearest")
 
 
+#: the 27 grid neighbours of a point (itself included first)
+_NEIGHBOURS = np.array(sorted(((i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1)
+                               for k in (-1, 0, 1)), key=lambda o: sum(map(abs, o))), float)
+
+
+def coarse_grid(decimals: int, radial_mm: float) -> bool:
+    """Whether rounding to ``decimals`` would take more than a quarter of the radial
+    tolerance (a control that reads 3 or 4 decimals): then every vertex goes to the grid
+    point nearest the sphere among its 27 neighbours (:func:`snap_to_sphere`), within
+    half a step of it instead of up to sqrt(3) / 2 steps."""
+    return 0.5 * 10.0 ** (-decimals) * math.sqrt(3.0) > 0.25 * radial_mm
+
+
+def on_grid(points_mm: np.ndarray, centre_mm: np.ndarray, radius_mm: float, decimals: int,
+            radial_mm: float) -> np.ndarray:
+    """Points of the sphere as a chord program writes them: rounded, and on a coarse
+    grid moved to the grid point nearest the sphere."""
+    p = round_to_decimals(np.atleast_2d(points_mm), decimals)
+    if coarse_grid(decimals, radial_mm):
+        p = snap_to_sphere(p, centre_mm, radius_mm, decimals)
+    return p.reshape(np.shape(points_mm))
+
+
+def snap_to_sphere(points_mm: np.ndarray, centre_mm: np.ndarray, radius_mm: float,
+                   decimals: int) -> np.ndarray:
+    """``points_mm : (n, 3)`` on the ``decimals`` grid, each moved to the grid point
+    nearest the sphere among its 27 neighbours (the nearest to it among equals):
+    within half a grid step of the sphere."""
+    step = 10.0 ** (-decimals)
+    # the points are on the grid already: their neighbours are a step away, far from
+    # any rounding boundary, and only the chosen ones are rounded as printed
+    cand = points_mm[:, None, :] + _NEIGHBOURS[None, :, :] * step
+    err = np.abs(np.linalg.norm(cand - centre_mm, axis=2) - radius_mm)
+    best = np.argmin(err + 1e-9 * step * np.abs(_NEIGHBOURS).sum(axis=1)[None, :], axis=1)
+    return round_to_decimals(cand[np.arange(len(cand)), best], decimals)
+
+
 def run_chords(curve: BSplineCurve, pieces, centre_mm: np.ndarray, radius_mm: float,
                limits: ChordLimits, decimals: int, label: str, start_mm: np.ndarray,
                end_mm: np.ndarray | None = None) -> RunChords:
     """The chords of one run along ``curve`` over ``pieces`` (each with ``id``,
     ``u_start``, ``u_end``, ``length_mm``), from ``start_mm`` (the current position) to
     ``end_mm`` when given (a static node: the program dwells exactly where it says)."""
-    rounding = 0.5 * 10.0 ** (-decimals) * math.sqrt(3.0)
+    snap = coarse_grid(decimals, limits.radial_mm)
+    rounding = 0.5 * 10.0 ** (-decimals) * (1.0 if snap else math.sqrt(3.0))
     budget = limits.radial_mm - rounding
     if budget <= 0:
         raise PlanError(f"{label}: post.decimals = {decimals} cannot hold the chord tolerance "
@@ -196,6 +234,8 @@ def run_chords(curve: BSplineCurve, pieces, centre_mm: np.ndarray, radius_mm: fl
         p = curve.evaluate(u_all) - centre_mm
         p = centre_mm + p * (radius_mm / np.linalg.norm(p, axis=1))[:, None]
         p = round_to_decimals(p, decimals)
+        if snap:
+            p = snap_to_sphere(p, centre_mm, radius_mm, decimals)
         p[0] = start_mm
         if end_mm is not None:
             p[-1] = end_mm

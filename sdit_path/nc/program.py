@@ -82,7 +82,9 @@ class Program:
     radial tolerance the path representation was made to (controllers that blend
     corners are told to stay within it).  ``frame``: ``table`` (ball centre in the
     table frame), ``traori`` (the same, with the control's 5-axis transformation on and
-    rotary words) or ``machine`` (machine axis values).
+    rotary words), ``tcpm`` (the same for chords: the control's tool centre point
+    control keeps the ball on each straight chord of the table frame while the rotary
+    axes turn) or ``machine`` (machine axis values).
     """
 
     name: str
@@ -94,3 +96,5 @@ class Program:
     tolerance_mm: float
     frame: str
     items: tuple[Item, ...]
+    #: the program's place in the plan (1, 2, ...), for controls that number programs
+    number: int = 1

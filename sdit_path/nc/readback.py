@@ -113,3 +113,151 @@ def read_polyline(text: str) -> np.ndarray:
             pos = [vals.get(k, p) for k, p in zip("XYZ", pos)]
             points.append(pos)
     return np.array(points)
+
+
+@dataclass(frozen=True, slots=True)
+class ReadMoves:
+    """A chord or NURBS program read back word by word, as its control reads it.
+
+    ``axes``: the axis letters it programs (X Y Z, then any of A B C); ``points :
+    (k, m)`` every straight move's end pose in that order (modal: an axis a block
+    leaves out keeps its value), ``lines : (k,)`` their program lines, ``feeds : (k,)``
+    the F in effect (mm/min, or 1/min where ``inverse_time``); ``dwells``: ``(line,
+    seconds, index of the pose it is made at)``; ``stops``: the lines of program stops
+    (M0, M00); ``splines``: ``(index of the pose it starts from, curve over X Y Z,
+    the F of its first block)``, the pose after it being its end."""
+
+    axes: tuple[str, ...]
+    points: np.ndarray
+    lines: np.ndarray
+    feeds: np.ndarray
+    inverse_time: np.ndarray
+    dwells: tuple[tuple[int, float, int], ...]
+    stops: tuple[int, ...]
+    splines: tuple[tuple[int, BSplineCurve, float], ...] = ()
+
+
+_AXIS_ORDER = "XYZABC"
+
+
+class _Moves:
+    def __init__(self):
+        self.pos: dict[str, float] = {}
+        self.rows: list[dict[str, float]] = []
+        self.lines: list[int] = []
+        self.feeds: list[float] = []
+        self.inverse: list[bool] = []
+        self.dwells: list[tuple[int, float, int]] = []
+        self.stops: list[int] = []
+        self.splines: list[tuple[int, BSplineCurve, float]] = []
+        self.feed = float("nan")
+        self.inverse_time = False
+
+    def move(self, lineno: int, vals: dict[str, float]) -> None:
+        self.pos.update({a: v for a, v in vals.items() if a in _AXIS_ORDER})
+        self.rows.append(dict(self.pos))
+        self.lines.append(lineno)
+        self.feeds.append(self.feed)
+        self.inverse.append(self.inverse_time)
+
+    def done(self) -> ReadMoves:
+        axes = tuple(a for a in _AXIS_ORDER if any(a in r for r in self.rows))
+        pts = np.array([[r.get(a, np.nan) for a in axes] for r in self.rows]).reshape(-1, len(axes))
+        return ReadMoves(axes, pts, np.array(self.lines, int), np.array(self.feeds),
+                         np.array(self.inverse, bool), tuple(self.dwells), tuple(self.stops),
+                         tuple(self.splines))
+
+
+def read_iso(text: str) -> ReadMoves:
+    """A FANUC or Haas program (``G01`` chords, ``G06.2`` NURBS, ``G04 X`` seconds,
+    ``G04 P`` milliseconds or, with a decimal point, seconds as Haas reads it)."""
+    m = _Moves()
+    nurbs: dict | None = None
+
+    def close() -> None:
+        nonlocal nurbs
+        if nurbs is None:
+            return
+        rank, pts, knots, w = nurbs["rank"], nurbs["points"], nurbs["knots"], nurbs["w"]
+        weights = np.array(w) if any(x != 1.0 for x in w) else None
+        curve = BSplineCurve(rank - 1, np.array(knots), np.array(pts), weights)
+        m.splines.append((nurbs["from"], curve, nurbs["feed"]))
+        end = dict(zip("XYZ", pts[-1]))
+        end.update(nurbs["rot"])
+        m.move(nurbs["line"], end)
+        nurbs = None
+
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        code = re.sub(r"\([^)]*\)", " ", raw).strip().upper()
+        if not code or code == "%" or code.startswith("O"):
+            continue
+        ws, _ = words(code)
+        g = [float(v) for a, _, v in ws if a == "G" and v]
+        vals = {a: float(v) for a, _, v in ws if v and a != "G"}
+        if "F" in vals and 6.2 not in g and nurbs is None:
+            m.feed = vals["F"]
+        if 93.0 in g:
+            m.inverse_time = True
+        if 94.0 in g:
+            m.inverse_time = False
+        if nurbs is not None and not g:
+            if set(vals) == {"K"}:
+                nurbs["knots"].append(vals["K"])
+            else:
+                nurbs["knots"].append(vals["K"])
+                nurbs["points"].append([vals.get(a, p) for a, p in zip("XYZ", nurbs["points"][-1])])
+                nurbs["w"].append(vals.get("R", 1.0))
+                for a in "ABC":
+                    if a in vals:
+                        nurbs["rot"][a] = vals[a]
+                nurbs["line"] = lineno
+            continue
+        close()
+        if 6.2 in g:
+            start = [vals.get(a, m.pos.get(a, np.nan)) for a in "XYZ"]
+            nurbs = {"rank": int(vals.get("P", 4)), "points": [start], "knots": [vals["K"]],
+                     "w": [vals.get("R", 1.0)], "from": len(m.rows) - 1, "line": lineno,
+                     "feed": vals.get("F", m.feed), "rot": {}}
+            if "F" in vals:
+                m.feed = vals["F"]
+            continue
+        if 4.0 in g:
+            if "X" in vals:
+                seconds = vals["X"]
+            else:
+                p_word = next(v for a, _, v in ws if a == "P")
+                seconds = float(p_word) if "." in p_word else float(p_word) / 1000.0
+            m.dwells.append((lineno, seconds, len(m.rows) - 1))
+            continue
+        if vals.get("M") in (0.0, 1.0):
+            m.stops.append(lineno)
+        if any(a in vals for a in _AXIS_ORDER):
+            m.move(lineno, vals)
+    close()
+    return m.done()
+
+
+def read_heidenhain(text: str) -> ReadMoves:
+    """A HEIDENHAIN Klartext program: ``L`` moves (signed coordinates, modal F),
+    ``CYCL DEF 9.1 DWELL`` seconds, ``M0`` stops."""
+    m = _Moves()
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        block = raw.split(" ", 1)[1] if " " in raw else ""
+        if block.startswith(";") or not block:
+            continue
+        if block.startswith("CYCL DEF 9.1 DWELL"):
+            m.dwells.append((lineno, float(block.split()[-1]), len(m.rows) - 1))
+            continue
+        if block in ("M0", "STOP", "STOP M0"):
+            m.stops.append(lineno)
+            continue
+        if not block.startswith("L "):
+            continue
+        vals = {}
+        for tok in block.split()[1:]:
+            if tok[0] in _AXIS_ORDER:
+                vals[tok[0]] = float(tok[1:])
+            elif tok.startswith("F") and tok != "FMAX":
+                m.feed = float(tok[1:])
+        m.move(lineno, vals)
+    return m.done()

@@ -18,6 +18,10 @@ ENTRY_POINT_GROUP = "sdit_path.postprocessors"
 BUILTIN: dict[str, str] = {
     "sinumerik840d": "sdit_path.postprocessors.sinumerik840d:Sinumerik840D",
     "linuxcnc": "sdit_path.postprocessors.linuxcnc:LinuxCNC",
+    "fanuc": "sdit_path.postprocessors.fanuc:Fanuc",
+    "fanuc_nurbs": "sdit_path.postprocessors.fanuc_nurbs:FanucNurbs",
+    "haas": "sdit_path.postprocessors.haas:Haas",
+    "heidenhain": "sdit_path.postprocessors.heidenhain:Heidenhain",
 }
 
 

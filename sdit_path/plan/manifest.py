@@ -15,6 +15,8 @@ FORMAT = "sdit-path/plan"
 FRAMES = {"table": "ball centre in the table frame (work offset)",
           "traori": "ball centre in the table frame, 5-axis transformation (TRAORI) on, "
                     "rotary axes programmed",
+          "tcpm": "ball centre in the table frame (work offset), tool centre point control "
+                  "on, rotary axes programmed as machine angles",
           "machine": "machine axis values (zero work offset)"}
 FORMAT_VERSION = 1
 
@@ -107,7 +109,9 @@ def manifest(result: PlanResult, files: dict[str, str | bytes] | None = None) ->
                            if cfg.timing.export_trajectories and prog.layer in timed else None),
             "sha256": hashlib.sha256(text.encode("utf-8")).hexdigest(),
         })
-    limits = {"sinumerik840d": cfg.post.spline_tolerance_um, "linuxcnc": cfg.post.chord_tolerance_um}
+    limits = {c: round(max(p.built.program.tolerance_mm for p in result.programs
+                           if p.controller == c) * 1e3, 6) for c in controllers
+              if any(p.controller == c for p in result.programs)}
     summary = {c: {"max_radial_deviation_um": round(max(
         (p.built.max_deviation_mm for p in result.programs if p.controller == c)) * 1e3, 6)}
         for c in controllers}

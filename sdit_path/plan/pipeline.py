@@ -105,7 +105,7 @@ def lint_limits(config: Config, kin: Kinematics, frame: str) -> dict[str, tuple[
               if ax.is_rotary}
     if frame == "machine":
         return {ax.name: tuple(ax.to_display(v) for v in ax.travel) for ax in kin.axes}
-    if frame == "traori":
+    if frame in ("traori", "tcpm"):
         return limits
     probe = np.vstack([np.zeros(3), np.eye(3)])
     angles = {n: np.full(4, v) for n, v in config.test.rotary.locked_rad}
@@ -120,11 +120,14 @@ def lint_limits(config: Config, kin: Kinematics, frame: str) -> dict[str, tuple[
 
 
 def post_layer(path: LayerPath, config: Config, hemi: Hemisphere,
-               controller: str) -> PlannedProgram:
-    """Build, render and lint one layer program; raises :class:`LintError` on failure."""
+               controller: str, number: int = 1) -> PlannedProgram:
+    """Build, render and lint one layer program (``number``: its place in the plan,
+    for controls that number their programs); raises :class:`LintError` on failure."""
     post = get_postprocessor(controller)
     built = build_program(path, config, hemi, controller, post.path_form, __version__,
-                          corners=getattr(post, "corners", None))
+                          corners=getattr(post, "corners", None),
+                          max_decimals=getattr(post, "max_decimals", 9),
+                          five_axis=getattr(post, "five_axis", None), number=number)
     text = post.render(built.program)
     file = f"{controller}/{built.program.name}{post.extension}"
     problems = post.lint(text, lint_limits(config, Kinematics(config.machine), built.program.frame))
@@ -191,11 +194,11 @@ def plan(config: Config, on_step: Callable[[str], None] | None = None,
     # windows' plan gives it its structure, the optimal speed law would be wasted
     timer = Timer(config, kin, optimal=config.timing.control != "linuxcnc")
     timed_layers, programs = [], []
-    for lp in layers:
+    for number, lp in enumerate(layers, start=1):
         posted = {}
         for controller in config.post.controllers:
             if lp.path.items:
-                posted[controller] = post_layer(lp.path, config, hemi, controller)
+                posted[controller] = post_layer(lp.path, config, hemi, controller, number)
                 programs.append(posted[controller])
             if on_step:
                 on_step(f"layer {lp.path.layer} posted for {controller}")

@@ -10,9 +10,14 @@ A control runs the program as written, and for some controllers that is not the 
   is read as a lag, a smoothing or a cyclic error.  In the machine frame (G93, a
   5-axis program) the joints move linearly between vertices, and the ball's path is
   the kinematics of that motion.
+* FANUC, Haas and HEIDENHAIN get chords too (within ``max_radial_deviation_um`` of
+  plan.json, which a control reading 4 decimals holds to its grid), read back with our
+  reader of each dialect; under HEIDENHAIN's TCPM (a 5-axis program) the ball moves
+  straight along each chord of the table frame.
 * SINUMERIK 840D gets a BSPLINE whose rounded control points keep the sphere to a few
-  nanometres (``max_radial_deviation_um`` in plan.json): below any recording's
-  resolution, taken as zero.
+  nanometres, a FANUC G06.2 NURBS to a few hundredths of a micrometre
+  (``max_radial_deviation_um`` in plan.json): below any recording's resolution, taken
+  as zero.
 
 :func:`written_deviation_um` gives, for every sample of a program's trajectory, the
 change of the bar's length where the control's path passes that sample: the point of
@@ -36,21 +41,21 @@ def written_deviation_um(plan, program: str, ball_mm: np.ndarray, moving: np.nda
     trajectory's ball positions ``ball_mm : (n, 3)``; zero where the machine stands
     (``moving`` False) and for controllers that write the curve itself."""
     out = np.zeros(len(ball_mm))
-    if plan.ran_on != "linuxcnc" or plan.motion_of(program) is not None:
-        return out  # the control's motion is the program as written already
+    if plan.ran_on not in CHORD_READERS or plan.motion_of(program) is not None:
+        return out  # a spline, or the control's motion: the program as written already
     found = plan.program_text(program)
     if found is None:
         return out
     text, entry = found
-    from ..timing.linuxcnc_tp import stretches  # the program's reader, shared
-
     cfg = plan.config
     kin = Kinematics(cfg.machine)
-    table = (entry.get("frame") or {}).get("name", "table") == "table"
+    frame = (entry.get("frame") or {}).get("name", "table")
+    # under TCPM the control keeps the ball on the straight chord of the table frame
+    table = frame in ("table", "tcpm")
     axes = ("X", "Y", "Z") if table else tuple(kin.names)
     try:
-        found_stretches = stretches(text, axes)
-    except ValueError as exc:
+        ends = _chord_vertices(plan.ran_on, text, axes)
+    except (ValueError, KeyError, IndexError) as exc:
         raise ConfigError(entry["file"], f"cannot read its moves: {exc}") from None
     rotary = np.array([not table and kin.axes[kin.index[a]].is_rotary for a in axes])
 
@@ -62,8 +67,6 @@ def written_deviation_um(plan, program: str, ball_mm: np.ndarray, moving: np.nda
             q[:, kin.index[name]] = np.radians(pos[:, col]) if rotary[col] else pos[:, col]
         return kin.forward(q)
 
-    # every chord of every stretch: its two ends in program coordinates and in the table
-    ends = [np.vstack([st.start[None, :], st.end]) for st in found_stretches]
     if not ends:
         return out
     a_prog = np.vstack([e[:-1] for e in ends])
@@ -96,3 +99,25 @@ def written_deviation_um(plan, program: str, ball_mm: np.ndarray, moving: np.nda
     out[idx] = (np.linalg.norm(on_path - pivot, axis=1)
                 - np.linalg.norm(p - pivot, axis=1)) * 1e3
     return out
+
+
+#: the chord controllers whose programs are read back here
+CHORD_READERS = ("linuxcnc", "fanuc", "haas", "heidenhain")
+
+
+def _chord_vertices(controller: str, text: str, axes: tuple[str, ...]) -> list[np.ndarray]:
+    """The program's vertices, stretch by stretch (cut at its dwells and stops): each
+    ``(k, m)`` in program coordinates, in the order of ``axes``."""
+    if controller == "linuxcnc":
+        from ..timing.linuxcnc_tp import stretches  # the program's reader, shared
+
+        return [np.vstack([st.start[None, :], st.end]) for st in stretches(text, axes)]
+    from ..nc.readback import read_heidenhain, read_iso
+
+    got = read_heidenhain(text) if controller == "heidenhain" else read_iso(text)
+    cols = [got.axes.index(a) for a in axes]
+    pts = got.points[:, cols]
+    cuts = sorted({i for _, _, i in got.dwells} | {int(np.searchsorted(got.lines, s)) - 1
+                                                   for s in got.stops})
+    bounds = [0] + [c for c in cuts if 0 < c < len(pts) - 1] + [len(pts) - 1]
+    return [pts[a:b + 1] for a, b in zip(bounds[:-1], bounds[1:]) if b > a]

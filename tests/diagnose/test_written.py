@@ -120,3 +120,38 @@ def test_a_linuxcnc_user_plans_the_controls_timing_and_reads_a_clean_recording_a
     assert report["findings"] == []
     al = report["alignment"]
     assert abs(al["offset_s"] - 4.0) < 0.002 and abs(al["clock_ppm"] - 30.0) < 3.0
+
+
+@pytest.mark.parametrize("controller", ["fanuc", "haas", "heidenhain", "fanuc_nurbs"])
+def test_the_chords_of_every_chord_dialect_enter_the_expected_reading(tmp_path_factory,
+                                                                     controller):
+    """FANUC, Haas and HEIDENHAIN chords are read back with our reader of each dialect
+    and dip inside the sphere between vertices as LinuxCNC's do; a FANUC NURBS keeps
+    the curve."""
+    import subprocess
+    import sys
+
+    from conftest import DATA
+
+    d = tmp_path_factory.mktemp(controller)
+    text = (DATA / "golden_small.toml").read_text().replace(
+        'controllers = ["sinumerik840d", "linuxcnc"]', f'controllers = ["{controller}"]')
+    (d / "c.toml").write_text(text)
+    r = subprocess.run([sys.executable, "-m", "sdit_path", "plan", str(d / "c.toml"), "--out",
+                        str(d / "P"), "-q"], capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    plan = load_plan(d / "P")
+    assert plan.ran_on == controller
+    ctx = build_context(plan, "GOLD_A")
+    written = ctx.written_um
+    if controller == "fanuc_nurbs":
+        assert not written.any()
+        return
+    # inside the sphere by up to the chord tolerance, measured from the planned curve,
+    # which this small plan keeps only within its (coarse) spline tolerance
+    tolerance_um = plan.config.post.chord_tolerance_um
+    curve_um = plan.config.post.spline_tolerance_um
+    assert written.min() < -0.5 * tolerance_um
+    assert written.min() >= -1.05 * tolerance_um - curve_um
+    assert written.max() <= 0.05 * tolerance_um + curve_um
+    assert not written[~ctx.moving].any()
