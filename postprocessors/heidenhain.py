@@ -38,8 +38,8 @@ import math
 import re
 import textwrap
 
-from sdit_path.nc.program import (Comment, Dwell, LinearMove, PolylineMove, Program,
-                                  ProgramStop)
+from sdit_path.nc.program import (AxisMove, Comment, Dwell, LinearMove, PolylineMove,
+                                  Program, ProgramStop)
 from sdit_path.nc.text import neutralise
 from sdit_path.nc.words import fixed, trimmed
 
@@ -83,6 +83,10 @@ class Heidenhain:
             elif isinstance(item, LinearMove):
                 body.append(f"L {_words(item.point_mm, item.rotary_deg, d)} R0 "
                             f"F{trimmed(item.feed_mm_per_min, 3)}")
+                feed = item.feed_mm_per_min
+            elif isinstance(item, AxisMove):
+                ws = " ".join(f"{n}{_signed(v, d)}" for n, v in item.words)
+                body.append(f"L {ws} R0 F{trimmed(item.feed_mm_per_min, 3)}")
                 feed = item.feed_mm_per_min
             elif isinstance(item, Dwell):
                 body += _comments(f"dwell at node {item.node_id}")

@@ -13,7 +13,7 @@ import math
 import re
 
 from sdit_path.nc.chords import CornerModel
-from sdit_path.nc.program import (Comment, Dwell, LinearMove, PolylineMove, Program,
+from sdit_path.nc.program import (AxisMove, Comment, Dwell, LinearMove, PolylineMove, Program,
                                   ProgramStop, SplineMove)
 from sdit_path.nc.text import neutralise
 from sdit_path.nc.words import fixed, frame, trimmed, words, xyz
@@ -67,6 +67,10 @@ class LinuxCNC:
             elif isinstance(item, LinearMove):
                 rot = "".join(f" {n}{fixed(v, d)}" for n, v in item.rotary_deg)
                 body.append(f"G1 {xyz(item.point_mm, d)}{rot} F{trimmed(item.feed_mm_per_min, 3)}")
+                modal_feed = item.feed_mm_per_min
+            elif isinstance(item, AxisMove):
+                ws = " ".join(f"{n}{fixed(v, d)}" for n, v in item.words)
+                body.append(f"G1 {ws} F{trimmed(item.feed_mm_per_min, 3)}")
                 modal_feed = item.feed_mm_per_min
             elif isinstance(item, Dwell):
                 body.append(f"(dwell at node {_comment(item.node_id)})")

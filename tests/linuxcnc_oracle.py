@@ -12,6 +12,8 @@ import sys
 import tempfile
 from dataclasses import dataclass, field
 
+from sdit_path.program_marks import TEST_BEGINS, TEST_ENDS
+
 DIST = "/usr/lib/python3/dist-packages"
 
 
@@ -32,12 +34,29 @@ class Recorder:
     arcs: list = field(default_factory=list)
     rates: list = field(default_factory=list)  # (line, mm/min) as each F takes effect
     messages: list = field(default_factory=list)
+    comments: list = field(default_factory=list)
     line: int = 0
 
     def __getattr__(self, name):  # every other canonical call is accepted and ignored
         if name.startswith("__"):
             raise AttributeError(name)
         return lambda *a, **k: None
+
+    @property
+    def test_feeds(self) -> list:
+        """The feeds of the test: from the pose it starts at (the last feed before the
+        comment that begins it) to the comment that ends it; the operator's way to the
+        bar and back is left out (a program without those comments: every feed)."""
+        marks = {text.strip().lower(): line for line, text in self.comments}
+        first = marks.get(TEST_BEGINS)
+        last = marks.get(TEST_ENDS, 1 << 30)
+        if first is None:
+            return self.feeds
+        before = [f for f in self.feeds if f[0] < first]
+        return before[-1:] + [f for f in self.feeds if first < f[0] < last]
+
+    def comment(self, text):
+        self.comments.append((self.line, text))
 
     def next_line(self, state):
         self.line = state.sequence_number

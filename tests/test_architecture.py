@@ -17,7 +17,8 @@ PACKAGE = ROOT / "sdit_path"
 #: the layers, bottom first: a module may import its own layer and the layers below it.
 #: ``""`` is the package root (``__version__``).
 LAYERS: tuple[frozenset[str], ...] = (
-    frozenset({"", "errors", "arrays", "fixed_point", "heap", "parallel", "output"}),
+    frozenset({"", "errors", "arrays", "fixed_point", "heap", "parallel", "output",
+               "program_marks"}),
     frozenset({"config"}),
     frozenset({"geometry"}),
     frozenset({"machine"}),

@@ -55,6 +55,7 @@ sys.path.insert(0, str(HERE.parent))
 
 from sdit_path.machine.kinematics import Kinematics  # noqa: E402
 from sdit_path.plan.files import PlanFiles, load_plan  # noqa: E402
+from sdit_path.program_marks import TEST_ENDS  # noqa: E402
 
 LOCK = Path("/tmp/linuxcnc.lock")
 SERVO_S = 0.001
@@ -93,6 +94,9 @@ def settle(timeout):
         check()
         if s.interp_state == linuxcnc.INTERP_IDLE and s.queue == 0 and s.inpos:
             return
+        if s.interp_state == linuxcnc.INTERP_PAUSED or s.paused:
+            # a program stop (M0: mount the bar, take it off): the operator's cycle start
+            c.auto(linuxcnc.AUTO_RESUME)
         time.sleep(0.01)
     fail("the control did not finish within %.0f s" % timeout)
 
@@ -299,14 +303,22 @@ def control_run(plan: PlanFiles, program: str, position: np.ndarray, line: np.nd
     axes = program_axes(plan, program)
     # a dwell is the task's, not the motion's: the motion's program line is 0 until the
     # first run after the first dwell moves; that sample is our first run's start
-    moved = np.flatnonzero(line > 0)
+    # (the operator's way to the bar before the first dwell, and back after the comment
+    # that ends the test, are left out)
+    text = program_text(plan, program).splitlines()
+    first_dwell = next(n for n, raw in enumerate(text, start=1) if raw.startswith("G4 "))
+    end_line = next((n for n, raw in enumerate(text, start=1) if TEST_ENDS in raw.lower()),
+                    len(text) + 1)
+    moved = np.flatnonzero(line > first_dwell)
     if not len(moved):
         raise RuntimeError(f"{program}: the control never moved along the program")
     traj = plan.trajectory(program)
     first_run = float(traj.t_s[np.flatnonzero(traj.phase != "dwell")[0]])
     k = max(0, moved[0] - int(round(first_run / SERVO_S)))
-    t = (np.arange(k, len(line)) - moved[0]) * SERVO_S + first_run
-    return ControlRun(program, axes, t, position[k:], line[k:])
+    after = np.flatnonzero((line > end_line) & (np.arange(len(line)) > moved[0]))
+    stop = after[0] if len(after) else len(line)
+    t = (np.arange(k, stop) - moved[0]) * SERVO_S + first_run
+    return ControlRun(program, axes, t, position[k:stop], line[k:stop])
 
 
 def write_motion(run_: ControlRun, path: Path) -> None:

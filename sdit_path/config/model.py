@@ -282,6 +282,12 @@ class PostConfig:
     work_offset: str
     comment: str
     five_axis_mode: str
+    #: the program takes the operator to the bar and back (approach, stops, retract)
+    operator_sequence: bool = True
+    #: where the approach starts and the retract ends: the ball centre in the table
+    #: frame (None: above the pivot, 50 mm over the sphere)
+    safe_position_mm: tuple[float, float, float] | None = None
+    approach_feed_mm_per_min: float = 2000.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -381,7 +381,8 @@ def _post(r: Reader, root: dict) -> PostConfig:
     p = r.table(root, "post", ("controllers", "program_prefix", "decimals", "spline_degree",
                                "spline_tolerance_um", "chord_tolerance_um",
                                "chord_curve_tolerance_um", "work_offset", "comment",
-                               "five_axis_mode"))
+                               "five_axis_mode", "operator_sequence", "safe_position_mm",
+                               "approach_feed_mm_per_min"))
     controllers = r.strings(p, "post.controllers", ("sinumerik840d", "linuxcnc"))
     # the names are judged by the post-processor registry (sdit_path.nc.registry)
     if len(set(controllers)) != len(controllers):
@@ -405,6 +406,11 @@ def _post(r: Reader, root: dict) -> PostConfig:
         work_offset=offset,
         comment=r.string(p, "post.comment", ""),
         five_axis_mode=r.string(p, "post.five_axis_mode", "traori", FIVE_AXIS_MODES),
+        operator_sequence=r.boolean(p, "post.operator_sequence", True),
+        safe_position_mm=(r.xyz(p, "post.safe_position_mm", unit="mm")
+                          if "safe_position_mm" in p else None),
+        approach_feed_mm_per_min=r.number(p, "post.approach_feed_mm_per_min", 2000.0, gt=0,
+                                          le=60000, unit="mm/min"),
     )
 
 

@@ -236,8 +236,21 @@ class Scene:
             out[:, c] = d - self.parts[small].radius_mm - self._allowance[c] - 1e-6
         return out
 
+    def _spheres(self, poses, i: int, pair: int) -> float | None:
+        """The signed distance of two spheres, from their centres (fcl's signed distance
+        does not return for two spheres with one centre); None for other shapes."""
+        a, b = self.pairs[pair]
+        pa, pb = self.parts[a], self.parts[b]
+        if pa.shape != "sphere" or pb.shape != "sphere":
+            return None
+        d = float(np.linalg.norm(poses[a][1][i] - poses[b][1][i]))
+        return d - pa.size_mm[0] - pb.size_mm[0] - float(self._allowance[pair])
+
     def exact(self, poses: list[tuple[np.ndarray, np.ndarray]], i: int, pair: int) -> float:
         """fcl distance of ``pair`` at pose ``i`` (conservative, see the module)."""
+        spheres = self._spheres(poses, i, pair)
+        if spheres is not None:
+            return spheres
         a, b = self.pairs[pair]
         for k in (a, b):
             rot, pos = poses[k]
@@ -264,7 +277,9 @@ class Scene:
                 rot, pos = poses[k]
                 objs[k].setTransform(fcl.Transform(rot[i], pos[i]))
             for c, (a, b) in enumerate(self.pairs):
-                out[i, c] = fcl.distance(objs[a], objs[b], req, fcl.DistanceResult())
+                spheres = self._spheres(poses, i, c)
+                out[i, c] = (spheres + self._allowance[c] if spheres is not None else
+                             fcl.distance(objs[a], objs[b], req, fcl.DistanceResult()))
         return out - self._allowance
 
     def nearest_points(self, q: np.ndarray, pair: int) -> tuple[np.ndarray, np.ndarray]:

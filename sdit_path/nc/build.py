@@ -16,11 +16,14 @@ from ..fixed_point import round_to_decimals
 from ..geometry.paths import Dwell as PathDwell
 from ..geometry.nurbs import BSplineCurve, max_radial_deviation, rounded_on_sphere
 from ..geometry.paths import LayerPath, Remount, Run
+from ..machine.approach import OperatorSequence
 from ..machine.kinematics import Kinematics
 from ..machine.schedule import RotarySchedule
 from .chords import ChordLimits, CornerModel, on_grid, run_chords
 from .five_axis import AxisTrack, round_axis_values, machine_chords, machine_spline, rotary_controls
-from .program import Comment, Dwell, LinearMove, PolylineMove, Program, ProgramStop, SplineMove
+from ..program_marks import TEST_BEGINS, TEST_ENDS
+from .program import (AxisMove, Comment, Dwell, LinearMove, PolylineMove, Program, ProgramStop,
+                      SplineMove)
 from .text import program_name
 
 
@@ -69,6 +72,43 @@ def program_frame(config: Config, path_form: str, five_axis: str | None = None) 
     return "machine"
 
 
+#: what the operator does at each stop (our text, never the user's)
+MOUNT = ("the ballbar is NOT mounted yet: mount it between the pivot and the tool cup, "
+         "start the recording, then cycle start")
+DISMOUNT = "test done: stop the recording, take the ballbar off, then cycle start to retract"
+
+
+def opening(operator: OperatorSequence, leg_words, feed: float, where: str) -> list:
+    """The approach: Z up alone (from an unknown place), the safe position (the rotary
+    axes to their start angles), over the start node, down to it; the mounting stop.
+    ``leg_words(point, angles) -> (xyz, rotary words)``: a table-frame point with the
+    rotary axes at ``angles`` (name -> rad) as the program writes it."""
+    legs = operator.approach
+    angles = dict(operator.angles_rad)
+    safe_xyz, _ = leg_words(legs[1].end_mm, angles)
+    out: list = [Comment("operator sequence: the bar is not mounted; the first two moves "
+                         "leave from wherever the machine stands, Z up first"),
+                 AxisMove((("Z", float(safe_xyz[2])),), feed)]
+    for leg in legs[1:]:
+        xyz, rot = leg_words(leg.end_mm, angles)
+        out.append(Comment(leg.name))
+        out.append(LinearMove(xyz, feed, rot))
+    out.append(ProgramStop(f"at {where}: {MOUNT}"))
+    out.append(Comment(TEST_BEGINS))
+    return out
+
+
+def closing(operator: OperatorSequence, leg_words, end_angles: dict, feed: float) -> list:
+    """After the last dwell: the stop to take the bar off, up to the safe height, back
+    to the safe position, the rotary axes where the test left them (``end_angles``)."""
+    out: list = [Comment(TEST_ENDS), ProgramStop(DISMOUNT)]
+    for leg in operator.retract:
+        xyz, rot = leg_words(leg.end_mm, end_angles)
+        out.append(Comment(leg.name))
+        out.append(LinearMove(xyz, feed, rot))
+    return out
+
+
 def machine_grid_floor_mm(kin: Kinematics, track: AxisTrack, hemi: Hemisphere,
                           decimals: int) -> float:
     """The tolerance a machine-axis program on a coarse grid can hold: twice how far the
@@ -89,13 +129,15 @@ def machine_grid_floor_mm(kin: Kinematics, track: AxisTrack, hemi: Hemisphere,
 
 def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller: str,
                   path_form: str, version: str, corners: CornerModel | None = None,
-                  max_decimals: int = 9, five_axis: str | None = None, number: int = 1
-                  ) -> BuiltProgram:
+                  max_decimals: int = 9, five_axis: str | None = None, number: int = 1,
+                  operator: OperatorSequence | None = None) -> BuiltProgram:
     """Neutral program of one layer for a controller whose native path form is
     ``path_form`` (``"spline"`` or ``"chords"``); ``corners`` says when that control
     joins two chords at the feed (chords only; None: any turn); ``max_decimals``: the
     most decimals of a millimetre the control reads (``post.decimals`` beyond it are
-    not written); ``five_axis``: see :func:`program_frame`."""
+    not written); ``five_axis``: see :func:`program_frame`; ``operator``: the way to the
+    bar before the first dwell and back after the last (None: the program starts at
+    the start node, the bar mounted)."""
     post, test = config.post, config.test
     decimals = min(post.decimals, max_decimals)
     feed = test.feed_mm_per_min
@@ -144,7 +186,22 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
             deviation[piece.id] = max(deviation.get(piece.id, 0.0), d)
 
     where = f"node {path.start_node}" if path.start_node else "the start point"
-    body.append(Comment(f"start at {where}: mount the ballbar here"))
+    def leg_words(p_table: np.ndarray, angles: dict):
+        """A point off the sphere with the rotary axes held at ``angles`` (rad)."""
+        p = np.asarray(p_table, dtype=float)
+        if frame == "table":
+            return round_to_decimals(p, decimals), locked
+        rot = tuple((n, round(math.degrees(angles[n]), decimals) + 0.0) for n in rot_names)
+        if frame in ("traori", "tcpm"):
+            return round_to_decimals(p, decimals), rot
+        q = kin.inverse(p[None, :], {n: np.array([v]) for n, v in angles.items()})[0]
+        return round_to_decimals(q[lin], decimals), rot
+
+    if operator is not None:
+        body += opening(operator, leg_words, post.approach_feed_mm_per_min, where)
+        body.append(Comment(f"start at {where}"))
+    else:
+        body.append(Comment(f"start at {where}: mount the ballbar here"))
     xyz, rot, carry = words(path.start_mm, carry)
     body.append(LinearMove(xyz, feed, rot))
     current_table = on_sphere(path.start_mm)
@@ -183,10 +240,10 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
             curve = run.curve
             devs = [p.max_radial_deviation_mm for p in run.pieces]
             if decimals < post.decimals:  # a control that reads fewer decimals than fitted
-                ctrl = curve.control_points_mm.copy()
-                ctrl[0] = current_table
-                ctrl[-1] = on_sphere(ctrl[-1])
-                curve = rounded_on_sphere(BSplineCurve(curve.degree, curve.knots, ctrl,
+                cps = curve.control_points_mm.copy()
+                cps[0] = current_table
+                cps[-1] = on_sphere(cps[-1])
+                curve = rounded_on_sphere(BSplineCurve(curve.degree, curve.knots, cps,
                                                        curve.weights),
                                           hemi.centre_mm, hemi.radius_mm, decimals)
                 devs = max_radial_deviation(curve, hemi.centre_mm, hemi.radius_mm,
@@ -241,6 +298,11 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
                                for n in rot_names)
             body.append(PolylineMove(chords.points_mm, run_f, chords.labels, rotary))
 
+    if operator is not None:
+        # the rotary axes where the test left them (unwrapped: no turn back)
+        end_node = operator.retract[0].points_mm[0]
+        end_angles = {n: float(v[0]) for n, v in track.angles(end_node[None, :], carry)[0].items()}
+        body += closing(operator, leg_words, end_angles, post.approach_feed_mm_per_min)
     layer = next(la for la in hemi.layers if la.name == path.base_layer)
     worst_um = max(deviation.values()) * 1e3
     c = hemi.centre_mm
@@ -253,11 +315,11 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
               "machine": f"machine axis values {' '.join(kin.names)}, work offset must be zero"}
     extra = ""
     if path_form == "spline":
-        limit = (f"{post.spline_tolerance_um:g} um" if spline_tol <= post.spline_tolerance_um * 1e-3
-                 else f"{spline_tol * 1e3:g} um, what the control's increment allows, as "
-                      f"post.spline_tolerance_um {post.spline_tolerance_um:g} um lies below it")
+        held = (f"{post.spline_tolerance_um:g} um" if spline_tol <= post.spline_tolerance_um * 1e-3
+                else f"{spline_tol * 1e3:g} um, what the control's increment allows, as "
+                     f"post.spline_tolerance_um {post.spline_tolerance_um:g} um lies below it")
         form = (f"path: B-spline degree {post.spline_degree}, uniform knots; max radial deviation "
-                f"from the sphere as emitted {worst_um:.4f} um (limit {limit};"
+                f"from the sphere as emitted {worst_um:.4f} um (limit {held};"
                 f" needs a control resolution of {decimals} decimals)")
     else:
         tol = (f"{post.chord_tolerance_um:g} um" if chord_tol <= post.chord_tolerance_um * 1e-3
@@ -299,6 +361,10 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
         (f"start and end: node {path.start_node}; every move stays on the sphere"
          if not path.omitted else
          f"left out as infeasible: {', '.join(path.omitted)} (the bar is remounted around them)"),
+        *((f"operator sequence at {post.approach_feed_mm_per_min:g} mm/min: Z up to "
+           f"{operator.safe_z_mm:g}, safe position, down to node {path.start_node}, M0 to mount "
+           f"the bar; at the end M0, bar off, up (legs checked: plan.json)",)
+          if operator is not None else ()),
     ) + ((post.comment,) if post.comment else ())
     program = Program(name=name, controller=controller, layer=path.layer, number=number,
                       header=header,
@@ -306,3 +372,60 @@ def build_program(path: LayerPath, config: Config, hemi: Hemisphere, controller:
                       tolerance_mm=spline_tol if path_form == "spline" else chord_tol,
                       items=tuple(body))
     return BuiltProgram(program, deviation)
+
+
+def _test_part(program: Program) -> tuple[list, list, list]:
+    """A layer program's items: before its test (the approach and the mounting stop),
+    the test, and after it (the stop to take the bar off, the retract)."""
+    items = list(program.items)
+    begin = next(k for k, i in enumerate(items) if isinstance(i, Comment) and i.text == TEST_BEGINS)
+    end = next(k for k, i in enumerate(items) if isinstance(i, Comment) and i.text == TEST_ENDS)
+    return items[:begin + 1], items[begin + 1:end], items[end:]
+
+
+def _poses(items: list) -> list[tuple[np.ndarray, tuple]]:
+    """The end pose (xyz, rotary words) of every move of ``items``."""
+    out = []
+    for i in items:
+        if isinstance(i, LinearMove):
+            out.append((np.asarray(i.point_mm), tuple(i.rotary_deg)))
+        elif isinstance(i, PolylineMove):
+            for j, p in enumerate(i.points_mm):
+                out.append((p, tuple((n, float(v[j])) for n, v in i.rotary_deg)))
+        elif isinstance(i, SplineMove):
+            out.append((i.curve.control_points_mm[-1],
+                        tuple((n, float(v[-1])) for n, v in i.rotary_deg)))
+    return out
+
+
+def master_program(programs: list[Program], name: str) -> Program | str:
+    """One program that runs the layer programs (each with its operator sequence) in
+    order with the bar mounted once: the first one's approach and mounting stop, every
+    test, a stop between two layers to save one recording and start the next, the last
+    one's stop and retract.  A string says why there is none: a layer that does not
+    start where the one before it ended (node and rotary words), which the bar would
+    not survive."""
+    parts = [_test_part(p) for p in programs]
+    body: list = list(parts[0][0])
+    for k, (program, (_, test, _)) in enumerate(zip(programs, parts)):
+        if k:
+            before, after = _poses(parts[k - 1][1])[-1], _poses(test)[0]
+            if not (np.array_equal(before[0], after[0]) and before[1] == after[1]):
+                return (f"{program.name} does not start where {programs[k - 1].name} ends "
+                        f"(with the bar mounted): run the layer programs one by one")
+            body.append(ProgramStop(f"layer {programs[k - 1].layer} done: stop its recording and "
+                                    f"save it; start the recording of layer {program.layer}, then "
+                                    f"cycle start"))
+        body.append(Comment(f"layer {program.layer} ({program.name})"))
+        body += test
+    body += parts[-1][2]
+    first = programs[0]
+    keep = ("generated by", "sphere centre", "programmed point", "feed ", "coordinates:",
+            "operator sequence")
+    header = (f"{name}: the layer programs {', '.join(p.name for p in programs)} in order, the "
+              f"bar mounted once; a stop between two layers to save one recording and start "
+              f"the next", *(line for line in first.header if line.startswith(keep)))
+    return Program(name=name, controller=first.controller, layer="ALL", header=header,
+                   work_offset=first.work_offset, decimals=first.decimals,
+                   tolerance_mm=max(p.tolerance_mm for p in programs), frame=first.frame,
+                   items=tuple(body), number=0)

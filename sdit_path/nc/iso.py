@@ -16,7 +16,7 @@ import re
 import textwrap
 from dataclasses import dataclass
 
-from .program import Comment, Dwell, LinearMove, PolylineMove, ProgramStop
+from .program import AxisMove, Comment, Dwell, LinearMove, PolylineMove, ProgramStop
 from .text import neutralise
 from .words import fixed, trimmed, words, xyz
 
@@ -69,6 +69,10 @@ def chord_body(items, d: int, dialect: Dialect) -> list[str]:
             rot = tuple(item.rotary_deg)
             body.append(f"G01 {point_words(item.point_mm, rot, d)} "
                         f"F{number(item.feed_mm_per_min, 3)}")
+            modal_feed = item.feed_mm_per_min
+        elif isinstance(item, AxisMove):
+            ws = " ".join(f"{n}{fixed(v, d)}" for n, v in item.words)
+            body.append(f"G01 {ws} F{number(item.feed_mm_per_min, 3)}")
             modal_feed = item.feed_mm_per_min
         elif isinstance(item, Dwell):
             body += comment_lines(f"dwell at node {item.node_id}")

@@ -30,6 +30,15 @@ class LinearMove:
 
 
 @dataclass(frozen=True, slots=True)
+class AxisMove:
+    """A straight feed move of the axes named in ``words`` (axis, value in mm or deg);
+    the others keep their place (the operator sequence's first move: Z up)."""
+
+    words: tuple[tuple[str, float], ...]
+    feed_mm_per_min: float
+
+
+@dataclass(frozen=True, slots=True)
 class SplineMove:
     """One clamped B-spline from the current position (its first control point).
 
@@ -70,7 +79,7 @@ class ProgramStop:
     message: str
 
 
-Item = Comment | LinearMove | SplineMove | PolylineMove | Dwell | ProgramStop
+Item = Comment | LinearMove | AxisMove | SplineMove | PolylineMove | Dwell | ProgramStop
 
 
 @dataclass(frozen=True, slots=True)

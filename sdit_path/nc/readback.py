@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry.nurbs import BSplineCurve
+from ..program_marks import TEST_BEGINS, TEST_ENDS
 from .words import words
 
 
@@ -135,6 +136,14 @@ class ReadMoves:
     dwells: tuple[tuple[int, float, int], ...]
     stops: tuple[int, ...]
     splines: tuple[tuple[int, BSplineCurve, float], ...] = ()
+    #: the test's poses: ``points[test_from:test_to + 1]`` (the pose it starts from to
+    #: its last); before and after, the operator's way to the bar and back
+    test_from: int = 0
+    test_to: int = -1
+
+    @property
+    def test(self) -> slice:
+        return slice(self.test_from, self.test_to + 1 if self.test_to >= 0 else len(self.points))
 
 
 _AXIS_ORDER = "XYZABC"
@@ -152,6 +161,15 @@ class _Moves:
         self.splines: list[tuple[int, BSplineCurve, float]] = []
         self.feed = float("nan")
         self.inverse_time = False
+        self.test_from, self.test_to = 0, -1
+
+    def mark(self, raw: str) -> None:
+        """Where the comments that frame the test fall among the poses."""
+        low = raw.lower()
+        if TEST_BEGINS in low:
+            self.test_from = max(len(self.rows) - 1, 0)
+        if TEST_ENDS in low:
+            self.test_to = len(self.rows) - 1
 
     def move(self, lineno: int, vals: dict[str, float]) -> None:
         self.pos.update({a: v for a, v in vals.items() if a in _AXIS_ORDER})
@@ -165,7 +183,7 @@ class _Moves:
         pts = np.array([[r.get(a, np.nan) for a in axes] for r in self.rows]).reshape(-1, len(axes))
         return ReadMoves(axes, pts, np.array(self.lines, int), np.array(self.feeds),
                          np.array(self.inverse, bool), tuple(self.dwells), tuple(self.stops),
-                         tuple(self.splines))
+                         tuple(self.splines), self.test_from, self.test_to)
 
 
 def read_iso(text: str) -> ReadMoves:
@@ -188,6 +206,7 @@ def read_iso(text: str) -> ReadMoves:
         nurbs = None
 
     for lineno, raw in enumerate(text.splitlines(), start=1):
+        m.mark(raw)
         code = re.sub(r"\([^)]*\)", " ", raw).strip().upper()
         if not code or code == "%" or code.startswith("O"):
             continue
@@ -242,6 +261,7 @@ def read_heidenhain(text: str) -> ReadMoves:
     ``CYCL DEF 9.1 DWELL`` seconds, ``M0`` stops."""
     m = _Moves()
     for lineno, raw in enumerate(text.splitlines(), start=1):
+        m.mark(raw)
         block = raw.split(" ", 1)[1] if " " in raw else ""
         if block.startswith(";") or not block:
             continue

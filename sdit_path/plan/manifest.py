@@ -147,16 +147,51 @@ def manifest(result: PlanResult, files: dict[str, str | bytes] | None = None) ->
         "layers": [{"name": la.name, "lower_track": la.lower_track, "upper_track": la.upper_track,
                     "elevation_deg": [_deg(la.lower_elevation_rad), _deg(la.upper_elevation_rad)],
                     "is_cap": la.is_cap, "segments": [s.id for s in la.segments],
-                    "omitted": list(lp.path.omitted), "programmed": bool(lp.path.items)}
+                    "omitted": list(lp.path.omitted), "programmed": bool(lp.path.items),
+                    **({"operator_sequence": _operator(lp)} if lp.operator is not None else {})}
                    for la, lp in zip(hemi.layers, result.layers)],
         "segments": segments,
         "transits": transits,
         "programs": programs,
+        "master_programs": [{"file": m.file, "controller": m.controller,
+                             "name": m.built.program.name,
+                             "layers": [lp.path.layer for lp in result.layers
+                                        if lp.path.items and not lp.path.remeasure],
+                             "blocks": count_blocks(m.text),
+                             "sha256": hashlib.sha256(m.text.encode("utf-8")).hexdigest()}
+                            for m in result.masters],
+        **({"no_master_program": {c: why for c, why in result.no_master}}
+           if result.no_master else {}),
         "summary": summary,
         "tested_travel": _tested_travel(result),
         "files": {rel: _sha256(content) for rel, content in sorted((files or {}).items())
                   if rel != "plan.json"},
     }
+
+
+def _operator(lp) -> dict:
+    """The way to the bar and back: every leg, where it goes (the ball centre, table
+    frame) and its smallest clearance with the bar not mounted; the first two leave from
+    wherever the machine stands and are not checked."""
+    seq = lp.operator
+    legs = []
+    for check in lp.leg_checks:
+        leg = check.leg
+        phase = "approach" if any(leg is x for x in seq.approach) else "retract"
+        entry = {"phase": phase, "move": leg.name, "to_mm": _mm(leg.end_mm),
+                 "checked": leg.checked}
+        if leg.checked:
+            entry["from_mm"] = _mm(leg.points_mm[0])
+            if check.min_clearance_mm is not None:
+                entry["min_clearance_mm"] = round(check.min_clearance_mm, 4) + 0.0
+                entry["clearance_pair"] = list(check.clearance_pair)
+            entry["violations"] = list(check.violations)
+        legs.append(entry)
+    return {"safe_z_mm": round(seq.safe_z_mm, 6) + 0.0,
+            "rotary_deg": {n: _deg(v) for n, v in seq.angles_rad},
+            "stops": ["after the approach: mount the bar, start the recording",
+                      "after the last dwell: stop the recording, take the bar off"],
+            "legs": legs}
 
 
 def _sha256(content: str | bytes) -> str:
@@ -193,7 +228,7 @@ def plan_directory_files(result: PlanResult, on_step=None) -> dict[str, str | by
 
     import gzip
 
-    files: dict[str, str | bytes] = {p.file: p.text for p in result.programs}
+    files: dict[str, str | bytes] = {p.file: p.text for p in (*result.programs, *result.masters)}
     for rel, text in trajectory_files(result, on_step=on_step).items():
         # gzip level 1: a quarter of the CSV's size in a third of a second per layer;
         # mtime 0 and no file name keep the bytes reproducible

@@ -5,7 +5,7 @@ Nothing here touches the file system."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -16,11 +16,13 @@ from ..geometry.hemisphere import Hemisphere, partition
 from ..geometry.paths import LayerPath, PathBuilder
 from ..interference.check import Clearance, run_clearances
 from ..interference.scene import Scene
+from ..machine.approach import Leg, OperatorSequence, operator_sequence
 from ..machine.kinematics import Kinematics
 from ..machine.poses import RunPoses, layer_poses
 from ..machine.reach import PieceCheck, Violation, reach_violations
-from ..nc.build import BuiltProgram, build_program
+from ..nc.build import BuiltProgram, build_program, master_program
 from ..nc.registry import get_postprocessor
+from ..nc.text import program_name
 from ..timing.control import control_layer
 from ..timing.linuxcnc_tp import ControlLimits, simulate, stretches
 from ..timing.trajectory import TimedLayer, Timer, sample
@@ -40,22 +42,44 @@ class PlannedProgram:
 
 
 @dataclass(frozen=True, slots=True)
+class LegCheck:
+    """The verdict on one leg of the operator sequence: the smallest clearance between
+    the tool's side and the table's side along it (the bar not mounted) and the pair,
+    and what makes it infeasible (travel, collision); an unchecked leg (its start
+    unknown) has none."""
+
+    leg: Leg
+    min_clearance_mm: float | None
+    clearance_pair: tuple[str, str] | None
+    violations: tuple[str, ...]
+
+
+@dataclass(frozen=True, slots=True)
 class LayerPlan:
     """A layer's path as programmed, its poses, and the verdict on every piece it was
-    planned with (including pieces then left out)."""
+    planned with (including pieces then left out); the operator's way to the bar and
+    back with the verdict on every leg (None: ``post.operator_sequence = false``)."""
 
     path: LayerPath
     poses: tuple[RunPoses, ...]
     checks: tuple[PieceCheck, ...]
     timed: TimedLayer | None = None
+    operator: OperatorSequence | None = None
+    leg_checks: tuple[LegCheck, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
 class PlanResult:
+    """``masters``: per controller one program that runs the layer programs in order
+    with the bar mounted once (with the operator sequence); ``no_master``: why a
+    controller has none."""
+
     config: Config
     hemisphere: Hemisphere
     layers: tuple[LayerPlan, ...]
     programs: tuple[PlannedProgram, ...]
+    masters: tuple[PlannedProgram, ...] = ()
+    no_master: tuple[tuple[str, str], ...] = ()
 
     @property
     def paths(self) -> tuple[LayerPath, ...]:
@@ -95,6 +119,40 @@ def check_layer(path: LayerPath, config: Config, kin: Kinematics, scene: Scene
     return poses, tuple(checks)
 
 
+def check_legs(seq: OperatorSequence, config: Config, kin: Kinematics, scene: Scene
+               ) -> tuple[LegCheck, ...]:
+    """Travel and clearance along every leg whose start is known (the bar not
+    mounted: its pairs are left out)."""
+    keep = [k for k, pair in enumerate(scene.pair_names) if "bar" not in pair]
+    safety = config.check.safety_clearance_mm
+    out = []
+    for leg in (*seq.approach, *seq.retract):
+        if not leg.checked:
+            out.append(LegCheck(leg, None, None, ()))
+            continue
+        bad = []
+        for j, ax in enumerate(kin.axes):
+            m = config.check.angle_margin_rad if ax.is_rotary else config.check.travel_margin_mm
+            lo, hi = ax.travel[0] + m, ax.travel[1] - m
+            v = leg.q[:, j]
+            if v.min() < lo - 1e-12 or v.max() > hi + 1e-12:
+                worst = v.min() if v.min() < lo else v.max()
+                bad.append(f"{ax.name} {ax.to_display(worst):.3f} {ax.unit} outside its travel "
+                           f"[{ax.to_display(lo):g}, {ax.to_display(hi):g}] {ax.unit} (margins "
+                           f"included)")
+        clear, pair = None, None
+        if keep:
+            c = scene.clearances(leg.q)[:, keep]
+            i, k = np.unravel_index(int(np.argmin(c)), c.shape)
+            clear, pair = float(c[i, k]), scene.pair_names[keep[k]]
+            if clear < safety:
+                at = ", ".join(f"{x:.1f}" for x in leg.points_mm[i])
+                bad.append(f"collision {pair[0]}/{pair[1]}: clearance {clear:.3f} mm < {safety:g} "
+                           f"mm safety with the ball at ({at}) mm")
+        out.append(LegCheck(leg, clear, pair, tuple(bad)))
+    return tuple(out)
+
+
 def lint_limits(config: Config, kin: Kinematics, frame: str) -> dict[str, tuple[float, float]]:
     """Travel limits to lint the programmed words against, in the programmed frame
     (mm and deg): every axis for machine-axis programs; the rotary axes under TRAORI;
@@ -120,20 +178,47 @@ def lint_limits(config: Config, kin: Kinematics, frame: str) -> dict[str, tuple[
 
 
 def post_layer(path: LayerPath, config: Config, hemi: Hemisphere,
-               controller: str, number: int = 1) -> PlannedProgram:
+               controller: str, number: int = 1,
+               operator: OperatorSequence | None = None) -> PlannedProgram:
     """Build, render and lint one layer program (``number``: its place in the plan,
-    for controls that number their programs); raises :class:`LintError` on failure."""
+    for controls that number their programs; ``operator``: the way to the bar and
+    back); raises :class:`LintError` on failure."""
     post = get_postprocessor(controller)
     built = build_program(path, config, hemi, controller, post.path_form, __version__,
                           corners=getattr(post, "corners", None),
                           max_decimals=getattr(post, "max_decimals", 9),
-                          five_axis=getattr(post, "five_axis", None), number=number)
+                          five_axis=getattr(post, "five_axis", None), number=number,
+                          operator=operator)
     text = post.render(built.program)
     file = f"{controller}/{built.program.name}{post.extension}"
     problems = post.lint(text, lint_limits(config, Kinematics(config.machine), built.program.frame))
     if problems:
         raise LintError(file, problems)
     return PlannedProgram(file, controller, path.layer, text, built)
+
+
+def _with_operator_sequence(layers: list[LayerPlan], config: Config, hemi: Hemisphere,
+                            kin: Kinematics, scene: Scene) -> list[LayerPlan]:
+    """Every programmed layer with its way to the bar and back, checked; a leg out of
+    travel or too close is a :class:`PlanError` naming the layer, the leg and why."""
+    out, bad = [], []
+    for lp in layers:
+        if not lp.path.items:
+            out.append(lp)
+            continue
+        dwells = lp.path.dwells
+        end = hemi.node(dwells[-1].node_id).position_mm if dwells else lp.path.start_mm
+        seq = operator_sequence(config, kin, lp.path.start_mm, end)
+        legs = check_legs(seq, config, kin, scene)
+        bad += [f"layer {lp.path.layer}, {c.leg.name}: {v}" for c in legs for v in c.violations]
+        out.append(replace(lp, operator=seq, leg_checks=legs))
+    if bad:
+        err = PlanError(f"the operator's way to the bar and back is not clear ({len(bad)} "
+                        f"problem(s)); move post.safe_position_mm, or set "
+                        f"post.operator_sequence = false and approach by hand")
+        err.details = bad
+        raise err
+    return out
 
 
 def _infeasible_message(bad: list[tuple[str, PieceCheck]]) -> PlanError:
@@ -190,6 +275,8 @@ def plan(config: Config, on_step: Callable[[str], None] | None = None,
             on_step(f"re-measure program of layer {layer.name} planned and checked")
     if bad:
         raise _infeasible_message(bad)
+    if config.post.operator_sequence:
+        layers = _with_operator_sequence(layers, config, hemi, kin, scene)
     # a LinuxCNC-timed plan replaces every run's timing by the control's: the
     # windows' plan gives it its structure, the optimal speed law would be wasted
     timer = Timer(config, kin, optimal=config.timing.control != "linuxcnc")
@@ -198,15 +285,48 @@ def plan(config: Config, on_step: Callable[[str], None] | None = None,
         posted = {}
         for controller in config.post.controllers:
             if lp.path.items:
-                posted[controller] = post_layer(lp.path, config, hemi, controller, number)
+                posted[controller] = post_layer(lp.path, config, hemi, controller, number,
+                                                lp.operator)
                 programs.append(posted[controller])
             if on_step:
                 on_step(f"layer {lp.path.layer} posted for {controller}")
         timed = timer.time_layer(lp.path) if lp.path.items else None
         if timed is not None and config.timing.control == "linuxcnc":
             timed = linuxcnc_timed(timed, posted["linuxcnc"], config, kin)
-        timed_layers.append(LayerPlan(lp.path, lp.poses, lp.checks, timed))
-    return PlanResult(config, hemi, tuple(timed_layers), tuple(programs))
+        timed_layers.append(replace(lp, timed=timed))
+    masters, no_master = _masters(timed_layers, programs, config)
+    return PlanResult(config, hemi, tuple(timed_layers), tuple(programs), masters, no_master)
+
+
+def _masters(layers: list[LayerPlan], programs: list[PlannedProgram], config: Config
+             ) -> tuple[tuple[PlannedProgram, ...], tuple[tuple[str, str], ...]]:
+    """Per controller the master program of the layer programs (re-measure programs
+    aside), linted, or why there is none."""
+    if not config.post.operator_sequence:
+        return (), ()
+    order = [lp.path.layer for lp in layers if lp.path.items and not lp.path.remeasure]
+    if len(order) < 2:
+        return (), ()
+    kin = Kinematics(config.machine)
+    masters, why = [], []
+    for controller in config.post.controllers:
+        post = get_postprocessor(controller)
+        progs = [next(p for p in programs if p.controller == controller and p.layer == layer)
+                 for layer in order]
+        name = program_name(config.post.program_prefix, "ALL")
+        built = master_program([p.built.program for p in progs], name)
+        if isinstance(built, str):
+            why.append((controller, built))
+            continue
+        text = post.render(built)
+        file = f"{controller}/{name}{post.extension}"
+        problems = post.lint(text, lint_limits(config, kin, built.frame))
+        if problems:
+            raise LintError(file, problems)
+        deviation = {k: v for p in progs for k, v in p.built.piece_deviation_mm.items()}
+        masters.append(PlannedProgram(file, controller, "ALL", text,
+                                      BuiltProgram(built, deviation)))
+    return tuple(masters), tuple(why)
 
 
 def linuxcnc_timed(timed: TimedLayer, program: PlannedProgram, config: Config,

@@ -119,5 +119,8 @@ def _chord_vertices(controller: str, text: str, axes: tuple[str, ...]) -> list[n
     pts = got.points[:, cols]
     cuts = sorted({i for _, _, i in got.dwells} | {int(np.searchsorted(got.lines, s)) - 1
                                                    for s in got.stops})
-    bounds = [0] + [c for c in cuts if 0 < c < len(pts) - 1] + [len(pts) - 1]
+    # the test's poses, not the operator's way to the bar and back
+    test = range(len(pts))[got.test]
+    first, last = test.start, test.stop - 1
+    bounds = sorted({first, last} | {c for c in cuts if first < c < last})
     return [pts[a:b + 1] for a, b in zip(bounds[:-1], bounds[1:]) if b > a]

@@ -43,6 +43,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..program_marks import TEST_BEGINS, TEST_ENDS
+
 #: the order of LinuxCNC's pose: XYZ, ABC, UVW
 POSE_AXES = "XYZABCUVW"
 _ROTARY = frozenset("ABC")
@@ -194,7 +196,9 @@ def stretches(text: str, axes: tuple[str, ...], start=None) -> list[Stretch]:
     The first stretch starts from ``start`` (``(m,)``), by default the pose of the
     program's first G1 block (the oracle moves there by MDI before it runs the
     program; an axis that block leaves out is at 0).  A stretch without a move (the
-    program's first G1 to where the machine already is) is left out.  Raises
+    program's first G1 to where the machine already is) is left out, and so is the
+    operator's way to the bar and back, before and after the comments
+    :data:`~sdit_path.program_marks.TEST_BEGINS` and ``TEST_ENDS``.  Raises
     ``ValueError`` naming the line for anything the model does not cover: G0, G2/G3,
     G61/G61.1, G64 with Q > 0, G91, G20, G95, G41/G42, G43, M codes but M0, M1 (a
     standstill, like a dwell of 0 s), M2, M30 and M5,
@@ -231,13 +235,22 @@ def stretches(text: str, axes: tuple[str, ...], start=None) -> list[Stretch]:
                 break
 
     out: list[Stretch] = []
+    # the operator's way to the bar and back, framed by our comments: not the test's
+    marks = {TEST_BEGINS: 0, TEST_ENDS: 0}
+    for number, raw in enumerate(lines, start=1):
+        low = raw.lower()
+        for mark in marks:
+            if not marks[mark] and mark in low:
+                marks[mark] = number
+    begins, ends = marks[TEST_BEGINS], marks[TEST_ENDS] or len(lines) + 1
     block: dict[str, list] = {k: [] for k in ("end", "line", "inv", "f", "tol")}
     stretch_start = pose.copy()
     motion, inverse, feed, tolerance = None, False, 0.0, 0.0
+    testing = begins == 0
 
     def close(dwell_s: float) -> None:
         nonlocal stretch_start, block
-        if block["end"]:
+        if block["end"] and testing:
             end = np.array(block["end"])
             steps = np.abs(np.diff(np.vstack([stretch_start, end]), axis=0))
             if np.any(steps >= _CART_FUZZ):
@@ -248,6 +261,12 @@ def stretches(text: str, axes: tuple[str, ...], start=None) -> list[Stretch]:
         stretch_start = pose.copy()
 
     for number, raw, words in parsed:
+        if not testing and number > begins:
+            close(0.0)
+            testing = True
+        if number > ends:
+            close(0.0)
+            return out
         for letter in words:
             if len(words[letter]) > 1 and letter != "G" and letter != "M":
                 raise _refuse(number, raw, f"{letter} given twice")

@@ -40,7 +40,7 @@ def _interpreted(rec, kin, h) -> tuple[np.ndarray, float]:
     """Machine values (rad, mm) of the interpreter's feed moves, and the largest distance
     of the ball from the sphere along them (every block moves every axis linearly; the
     first move goes from an unknown position to the start and is not checked)."""
-    raw = np.array([x[1:] for x in rec.feeds])        # x y z a b c
+    raw = np.array([x[1:] for x in rec.test_feeds])        # x y z a b c
     q = np.zeros((len(raw), len(kin.names)))
     for col, axis in enumerate("XYZABC"):
         if axis in kin.index:

@@ -75,7 +75,7 @@ def test_bundled_programs_pass_the_real_interpreter(default_plan, tmp_path):
         result, message, rec = interpret(str(f))
         assert ok(result), f"{prog.file}: interpreter error: {message}"
         assert not rec.traverses and not rec.arcs
-        p = np.array([x[1:4] for x in rec.feeds])
+        p = np.array([x[1:4] for x in rec.test_feeds])
         assert len(p) > 1000
         r = np.linalg.norm(p - h.centre_mm, axis=1) - h.radius_mm
         assert np.abs(r).max() <= tol
@@ -84,7 +84,7 @@ def test_bundled_programs_pass_the_real_interpreter(default_plan, tmp_path):
         assert [s for _, s in rec.dwells] == [2.0] * len(path.dwells)
         # the machine is at the dwell's node when it dwells
         node_pos = {n.id: n.position_mm for n in h.nodes}
-        feed_lines = np.array([x[0] for x in rec.feeds])
+        feed_lines = np.array([x[0] for x in rec.test_feeds])
         for (line, _), d in zip(rec.dwells, path.dwells):
             before = p[np.searchsorted(feed_lines, line) - 1]
             assert np.abs(before - node_pos[d.node_id]).max() < 2e-6
@@ -115,8 +115,8 @@ def test_chords_follow_the_planned_curve_and_turn_as_the_control_joins_them(defa
     f.write_text(prog.text)
     result, message, rec = interpret(str(f))
     assert ok(result), message
-    p = np.array([x[1:4] for x in rec.feeds])
-    lines = np.array([x[0] for x in rec.feeds])
+    p = np.array([x[1:4] for x in rec.test_feeds])
+    lines = np.array([x[0] for x in rec.test_feeds])
     # the runs: between dwells (the first feed move goes to the start node)
     cuts = np.searchsorted(lines, [line for line, _ in rec.dwells])
     corners = get_postprocessor("linuxcnc").corners

@@ -229,7 +229,7 @@ def test_remeasure_program_runs_only_the_replanned_sector_from_and_back_to_a1(re
 
         result, message, rec = interpret(str(out / "linuxcnc" / "GOLD_A_R.ngc"))
         assert ok(result), message
-        p = np.array([x[1:4] for x in rec.feeds])
+        p = np.array([x[1:4] for x in rec.test_feeds])
         tol = new.config.post.chord_tolerance_um * 1e-3
         assert np.abs(np.linalg.norm(p - centre, axis=1) - radius).max() <= tol
         assert chord_deviation(p[:-1], p[1:], centre, radius).max() <= tol
@@ -398,7 +398,7 @@ def test_a_sectors_crest_moves_where_asked_and_every_program_stays_on_the_sphere
 
         result, message, rec = interpret(str(tmp_path / "moved" / "linuxcnc" / "GOLD_A.ngc"))
         assert ok(result), message
-        p = np.array([x[1:4] for x in rec.feeds])
+        p = np.array([x[1:4] for x in rec.test_feeds])
         chord = moved.post.chord_tolerance_um * 1e-3
         assert np.abs(np.linalg.norm(p - centre, axis=1) - radius).max() <= chord
         assert chord_deviation(p[:-1], p[1:], centre, radius).max() <= chord

@@ -63,6 +63,12 @@ def test_the_program_is_read_as_the_control_reads_it_and_refused_where_not_model
     found = stretches(text, XYZ.axes)
     assert [(s.first_line, s.last_line, s.dwell_after_s) for s in found] == \
         [(4, 5, 0.0), (7, 7, 2.0), (9, 9, 0.0)]
+    # the operator's way to the bar and back, outside the comments that frame the test
+    (st,) = stretches("G21 G90 G94\nG1 Z9 F2000\nG1 X5 Y5 Z9\nG1 X0 Y0 Z0\nM0\n"
+                      "(The test begins here)\nG1 X0 Y0 Z0 F600\nG4 P2\nG1 X1\nG4 P2\n"
+                      "(THE TEST ENDS HERE)\nM0\nG1 Z9 F2000\nM2\n", XYZ.axes)
+    assert (st.first_line, st.last_line, st.dwell_after_s) == (9, 9, 2.0)
+    assert list(st.start) == [0.0, 0.0, 0.0]
     with pytest.raises(ValueError, match=r"line 3: G0 rapid"):
         stretches("G21 G90\nG1 X0 F600\nG0 X5\n", XYZ.axes)
     with pytest.raises(ValueError, match=r"line 2: .*A"):

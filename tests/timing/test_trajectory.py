@@ -119,9 +119,17 @@ def test_trajectory_sits_at_the_nodes_during_dwells(default_plan, default_files)
 
 
 def test_feed_words_equal_the_planned_feed(default_plan):
+    """From the move to the start node to the last dwell; the operator's way to the bar
+    and back runs at post.approach_feed_mm_per_min."""
+    cfg = default_plan.config
     for prog in default_plan.programs:
-        feeds = {float(m) for m in re.findall(r"(?m)^(?:BSPLINE|G1)\b.*\bF([0-9.]+)", prog.text)}
-        assert feeds == {default_plan.config.test.feed_mm_per_min}, (prog.file, feeds)
+        text = prog.text[prog.text.index("start at node"):]
+        test = text[:text.rindex("G4 ")]
+        feeds = {float(m) for m in re.findall(r"(?m)^(?:BSPLINE|G1)\b.*\bF([0-9.]+)", test)}
+        assert feeds == {cfg.test.feed_mm_per_min}, (prog.file, feeds)
+        rest = prog.text.replace(test, "")
+        approach = {float(m) for m in re.findall(r"(?m)^G1\b.*\bF([0-9.]+)", rest)}
+        assert approach == {cfg.post.approach_feed_mm_per_min}, (prog.file, approach)
 
 
 def test_cycle_times_in_the_manifest(default_plan):
