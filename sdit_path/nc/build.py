@@ -93,7 +93,8 @@ def opening(operator: OperatorSequence, leg_words, feed: float, where: str) -> l
         xyz, rot = leg_words(leg.end_mm, angles)
         out.append(Comment(leg.name))
         out.append(LinearMove(xyz, feed, rot))
-    out.append(ProgramStop(f"at {where}: {MOUNT}"))
+    table = ", ".join(f"{n} {math.degrees(v):.3f} deg" for n, v in operator.angles_rad)
+    out.append(ProgramStop(f"at {where}{f' ({table})' if table else ''}: {MOUNT}"))
     out.append(Comment(TEST_BEGINS))
     return out
 
