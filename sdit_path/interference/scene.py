@@ -194,7 +194,7 @@ class Scene:
                 pivot = np.einsum("nij,j->ni", rot_w, self.pivot_mm) + trans_w
                 ball = self.kin.tool_ball_bed(q)
                 d = ball - pivot
-                d = d / np.linalg.norm(d, axis=1)[:, None]
+                d = d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
                 bar = next(k for k, x in enumerate(self.parts) if x.body == "bar")
                 out.append((rotations_z_to(d) @ self._jit[bar], 0.5 * (pivot + ball)))
                 continue
