@@ -119,8 +119,11 @@ def plan_command(config: str | None, out_dir: str, force: bool, skip_infeasible:
         return
     out_console = Console()
     out_console.print(plan_table(result))
+    masters = (f"; {result.masters[0].built.program.name} runs the layers in order with the "
+               f"bar mounted once" if result.masters else "")
     out_console.print(f"wrote {len(files)} files to {out}/ (programs under "
-                      f"{', '.join(c + '/' for c in cfg.post.controllers)}, manifest plan.json)")
+                      f"{', '.join(c + '/' for c in cfg.post.controllers)}{masters}; manifest "
+                      f"plan.json)")
 
 
 @main.command("preview")

@@ -190,7 +190,11 @@ def test_user_text_cannot_inject_blocks(tmp_path):
         if not name.endswith((".MPF", ".ngc")):
             continue  # plan.json and the copied config.toml hold the text as data
         lines = data.decode("ascii").splitlines()
-        assert not any(l.startswith(("G0", "M0")) for l in lines), name
+        assert not any(l.startswith("G0") for l in lines), name
+        # the only stops are ours (the operator sequence's), each after its message
+        for k, line in enumerate(lines):
+            if line.startswith("M0"):
+                assert line == "M0" and lines[k - 1].startswith(("(STOP: ", "; STOP: ")), name
         assert not any("X-999" in l and not l.startswith((";", "(")) for l in lines)
         assert all(l.count("(") == l.count(")") <= 1 for l in lines if l.startswith("("))
     assert (out / "sinumerik840d" / "X_G0_Z_500___A.MPF").exists()
