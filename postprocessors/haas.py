@@ -49,9 +49,10 @@ class Haas:
         offset, note = offset_word(program)
         e = max(program.tolerance_mm, SMALLEST_E_MM)
         preamble = ["G17 G21 G40 G80 G90 G94", offset, "M05", f"G187 P3 E{e:.3f}"]
-        assumed = note + [f"G187 P3 E{e:.3f}: finishing smoothness, corner tolerance "
-                          f"{e:g} mm (the smallest G187 takes)",
-                          "dwells G04 P with a decimal point: seconds"]
+        why = ("the smallest G187 takes, above the chord tolerance" if e > program.tolerance_mm
+               else "the chord tolerance")
+        assumed = note + [f"G187 P3 E{e:.3f}: finishing smoothness, corner tolerance {e:g} mm "
+                          f"({why})", "dwells G04 P with a decimal point: seconds"]
         body = chord_body(program.items, program.decimals, _DIALECT)
         return frame_iso(program, preamble, body, ["G187"], 5, assumed)
 
