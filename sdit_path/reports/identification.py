@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import textwrap
 
 
 def summary_text(report: dict, max_combinations: int = 20) -> str:
@@ -44,8 +45,9 @@ def summary_text(report: dict, max_combinations: int = 20) -> str:
         lines.append("No single ISO parameter is determined individually: the data see only "
                      "the combinations above.")
     na = report["not_individually_identifiable"]
-    lines.append(f"Not determined individually ({len(na)}): {', '.join(na[:30])}"
-                 + (" ..." if len(na) > 30 else "") + ".")
+    # every one of them, wrapped: a list cut short hides the one a reader looks for
+    lines += textwrap.wrap(f"Not determined individually ({len(na)}): {', '.join(na)}.", 88,
+                           subsequent_indent="  ", break_on_hyphens=False)
     lines.append("")
     lines.append("Set-up nuisances (estimated, not machine errors). The ball centring also "
                  "absorbs the machine's constant translations: a constant offset between "
