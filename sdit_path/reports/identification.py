@@ -31,7 +31,9 @@ def summary_text(report: dict, max_combinations: int = 20) -> str:
                  f"(structural rank {report['rank']}; a combination counts as determined when its "
                  f"standard uncertainty is below half a typical error; uncertainties are the "
                  f"larger of the noise's and the spread over 1 s blocks of the recordings, which "
-                 f"holds for what the model lacks within a second).")
+                 f"holds for what the model lacks within a second). Every +- below is one "
+                 f"standard uncertainty (k=1); the expanded uncertainty (k=2, about 95 % "
+                 f"coverage) is twice it.")
     for k, c in enumerate(report["combinations"][:max_combinations], start=1):
         lines.append(f"  {k:2d}. {c['text']}")
     if len(report["combinations"]) > max_combinations:
