@@ -183,6 +183,47 @@ def _controller_option(f):
              "Default: the first the plan lists.")(f)
 
 
+def _conditions_options(f):
+    """What the user says of the test's conditions, shown in the report as given."""
+    for name, helptext in (
+            ("--date", "The test's date, as you want it in the report (the clock is never "
+                       "read: equal input gives an equal report)."),
+            ("--temperature", "A temperature, e.g. 'machine 21.4 C' (repeat)."),
+            ("--instrument", "The ballbar's make and serial number."),
+            ("--operator", "Who ran the test.")):
+        f = click.option(name, name.lstrip("-") + "s" if name == "--temperature"
+                         else name.lstrip("-"), multiple=name == "--temperature",
+                         default=() if name == "--temperature" else None, help=helptext)(f)
+    return f
+
+
+def _conditions(operator, instrument, temperatures, date) -> list[tuple[str, str]]:
+    """(what, value) for the report; one line of printable text each, at most 200
+    characters (anything else is refused, naming the option)."""
+    from .errors import ConfigError
+
+    out = []
+    for what, opt, values in (("operator", "--operator", [operator]),
+                              ("instrument", "--instrument", [instrument]),
+                              ("temperature", "--temperature", list(temperatures)),
+                              ("date", "--date", [date])):
+        for v in values:
+            if v is None:
+                continue
+            if len(v) > 200 or not all(ch.isprintable() for ch in v):
+                raise ConfigError(opt, "expected one line of printable text of at most 200 "
+                                       "characters")
+            out.append((what, v))
+    return out
+
+
+def _plan_sha256(plan_dir) -> str:
+    import hashlib
+    from pathlib import Path
+
+    return hashlib.sha256((Path(plan_dir) / "plan.json").read_bytes()).hexdigest()
+
+
 def _in_range(name: str, value: float, lo: float, hi: float) -> None:
     from .errors import ConfigError
 
@@ -327,8 +368,10 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
                    "the output is the same for any number.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress and no summary.")
 @_controller_option
+@_conditions_options
 def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_order,
-                    no_squareness, no_location, no_pictures, jobs, quiet, controller) -> None:
+                    no_squareness, no_location, no_pictures, jobs, quiet, controller,
+                    operator, instrument, temperatures, date) -> None:
     """Analyse recordings of a plan's programs: geometry, effects and what stays
     unexplained, estimated together."""
     from pathlib import Path
@@ -344,6 +387,7 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
     from .reports.diagnosis import pictures as diagnosis_pictures
 
     try:
+        conditions = _conditions(operator, instrument, temperatures, date)
         plan = load_plan(plan_dir).for_controller(controller)
         items = []
         for m in measured:
@@ -368,14 +412,87 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
             result = analyse(plan, recs, options, step=step, note=step.note,
                              jobs=jobs or default_jobs(),
                              draw=None if no_pictures else diagnosis_pictures)
-            files = analysis_files(result)
-            step("writing")
+            step("writing the report")
+            files = analysis_files(result, plan, _plan_sha256(plan_dir), conditions)
             write_tree(out_dir, files, force=force, command="analyse", protect=protect)
     except SditError as exc:
         _fail(exc)
         return
     if not quiet:
         click.echo(files["analysis.txt"], nl=False)
+
+
+@main.command("report")
+@click.option("--plan", "plan_dir", required=True, type=click.Path(file_okay=False),
+              help="A directory written by sdit-path plan.")
+@click.option("--analysis", "analysis_file", type=click.Path(dir_okay=False),
+              help="analysis.json written by sdit-path analyse of recordings of this plan "
+                   "(its aligned/ folder beside it); without, the plan's report.")
+@click.option("--out", "out_file", required=True, type=click.Path(dir_okay=False),
+              help="The HTML file to write (one self-contained file; prints to A4).")
+@click.option("--force", is_flag=True, help="Replace an earlier report at --out.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress lines on stderr.")
+@_controller_option
+@_conditions_options
+def report_command(plan_dir, analysis_file, out_file, force, quiet, controller, operator,
+                   instrument, temperatures, date) -> None:
+    """Write the test report: one HTML file with the plan and, with --analysis, the
+    results in the trade's terms."""
+    from pathlib import Path
+
+    from .analyse.sphere import deviations
+    from .analyse.stored import load_analysis
+    from .errors import OutputError
+    from .output import write_file
+    from .plan.files import load_plan
+    from .reports.html import GENERATOR, report_html
+
+    try:
+        conditions = _conditions(operator, instrument, temperatures, date)
+        target = Path(out_file)
+        inputs = [Path(plan_dir) / "plan.json", *([Path(analysis_file)] if analysis_file else [])]
+        if any(target.resolve() == p.resolve() for p in inputs):
+            raise OutputError(f"{out_file}: is an input of this report; choose another --out")
+        if target.is_dir():
+            raise OutputError(f"{out_file}: is a directory; expected a file name")
+        if target.exists():
+            if not force:
+                raise OutputError(f"{out_file}: exists; --force replaces an earlier report")
+            head = target.read_bytes()[:4096].decode("utf-8", "replace")
+            if f'content="{GENERATOR}"' not in head:
+                raise OutputError(f"{out_file}: is not a report written by sdit-path; not "
+                                  f"replaced")
+        with _Steps(quiet, 3, "reading the plan") as step:
+            sha = _plan_sha256(plan_dir)
+            plan = load_plan(plan_dir)
+            data, traces = None, []
+            if analysis_file:
+                step(f"reading {analysis_file}")
+                data, traces = load_analysis(analysis_file, plan, sha)
+                said = (data.get("plan") or {}).get("controller")
+                controller = controller or said
+            plan = plan.for_controller(controller)
+            step("drawing the report")
+            try:
+                text = report_html(plan, sha, data, deviations(plan, traces), conditions)
+            except (KeyError, TypeError, ValueError, IndexError) as exc:
+                from .errors import ConfigError
+
+                raise ConfigError(analysis_file or plan_dir,
+                                  f"a field the report reads is missing or of the wrong kind "
+                                  f"({type(exc).__name__}: {str(exc)[:80]}); not an output of "
+                                  f"this version of sdit-path") from None
+            write_file(out_file, text)
+    except SditError as exc:
+        _fail(exc)
+        return
+    except OSError as exc:
+        from .errors import OutputError as _OE
+
+        _fail(_OE(f"{out_file}: {exc.strerror or exc}"))
+        return
+    if not quiet:
+        click.echo(f"wrote {out_file}")
 
 
 @main.command("replan")

@@ -14,6 +14,16 @@ from ..reading.context import Context
 from ..reading.trace import Trace
 
 
+def recording_header(header: dict, longest: int = 120) -> dict:
+    """The recording's ``# key: value`` lines as the report shows them: text only,
+    control characters out, each cut to ``longest`` characters."""
+    out = {}
+    for k, v in list(header.items())[:40]:
+        key = "".join(ch for ch in str(k) if ch.isprintable())[:40]
+        out[key] = "".join(ch for ch in str(v) if ch.isprintable())[:longest]
+    return out
+
+
 @dataclass(frozen=True, slots=True)
 class Analysed:
     """One recording: its ``label`` (the file), its ``program`` and how it was chosen
@@ -55,6 +65,7 @@ class AnalysisResult:
                      "parameters": f["parameters"], "parameter_std": f["parameter_std"],
                      "contribution_rms_um": f["contribution_rms_um"]})
             per.append({"file": a.label, "program": a.program, "matched": a.matched,
+                        "header": recording_header(a.trace.header),
                         "first_alignment": a.aligned.as_json(), "diagnosis": dj,
                         "nuisances": geometry["nuisances"][k],
                         "timing": self.timing[k] if k < len(self.timing) else {"model": "plan"}})

@@ -40,6 +40,7 @@ from ..machine.schedule import RotarySchedule
 from ..plan.files import PlanFiles
 from ..reading.trace import Trace
 from ..timing.trajectory import axis_values_rad
+from .figures import estimate as trade_figures, functionals
 from .results import Identification
 
 DETERMINED = 0.5  # standard uncertainty below this share of the prior magnitude
@@ -471,6 +472,10 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
         std = std.copy()
         std[determined] = np.sqrt(np.diag(cov_d))
     combos = [_combination(model, V[:, i], est[i], std[i], scale) for i in np.flatnonzero(determined)]
+    # squareness and scale mismatch as a ballbar reads them, where the data determine them
+    figures = trade_figures(functionals([(plan, prog) for plan, prog, _ in experiments], model,
+                                        scale),
+                            x_hat, Vd, cov_d, model.names)
     individually = []
     aliased = []
     for j, p in enumerate(model.parameters):
@@ -515,6 +520,7 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
                           "estimate": cb.estimate, "std": cb.std, "unit": cb.unit,
                           "text": cb.describe()} for cb in combos],
         "identifiable_parameters": individually,
+        "figures": figures,
         # the fitted model (minimum norm: what the data do not determine held at zero),
         # to simulate the readings it predicts; its values are not machine errors one by one
         "model_state": {p.name: float(v) for p, v in zip(model.parameters, x_hat * scale)},

@@ -21,6 +21,9 @@ class Identification:
     ``nuisances``: per recording, the set-up (centring, bar length) and the effects'
     columns fitted beside; ``rank``, ``determined``: the data's structural rank and how
     many combinations it determines within the model's prior magnitudes;
+    ``figures``: squareness and scale mismatch as a ballbar reads them
+    (:mod:`sdit_path.identify.figures`), each with its estimate and standard uncertainty
+    where the data determine it, else the parameters it would need;
     ``noise_std_um``, ``residual_rms_um``: what the fit leaves; ``uncertainty``: how the
     uncertainties are made; ``exact_chain``: the Gauss-Newton steps on the exact error
     chain; ``observability``: per layer and segment, its share of the determined
@@ -43,6 +46,7 @@ class Identification:
     not_individually_identifiable: tuple
     nuisances: tuple
     observability: Mapping
+    figures: tuple = ()
     aliasing: tuple | None = None
     prior_estimates: tuple | None = None
     asked: tuple | None = None

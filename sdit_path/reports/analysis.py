@@ -6,16 +6,23 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
+
+import numpy as np
 
 from ..analyse import Analysed, AnalysisResult
-from .diagnosis import parameters_text
+from ..analyse.sphere import deviations
+from ..analyse.stored import aligned_name
+from ..plan.files import PlanFiles
+from .html import report_html
+from .vocabulary import SETUP_EFFECTS, effect_name, parameter_rows, pooled, row_text
 from .identification import summary_text as geometry_text
 
 
 def summary_text(report: dict) -> str:
     """The analysis as the metrologist reads it, from its JSON (``to_json()``)."""
-    lines = [f"Analysis of {len(report['recordings'])} recording(s)."]
+    lines = [f"Analysis of {len(report['recordings'])} recording(s). Alignment figures are "
+             f"+- one standard uncertainty (k=1); the results in the trade's terms and the "
+             f"effects' parameters +- the expanded uncertainty (k=2)."]
     for r in report["recordings"]:
         al = r["diagnosis"]["alignment"]
         own = (r.get("timing") or {}).get("model") == "recording"
@@ -24,6 +31,12 @@ def summary_text(report: dict) -> str:
         lines.append(f"  {r['file']}: {r['program']} ({r['matched']}); program starts at "
                      f"{al['offset_s']:.4f} s of the recording (+- {_ms(al['offset_std_s'])} ms), "
                      f"{clock}, noise {r['diagnosis']['noise_um']:.2f} um")
+        n = r.get("nuisances")
+        if n:
+            c = n["centring_um"]
+            lines.append(f"    set-up: ball centring ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) um, bar "
+                         f"length offset {n['bar_length_um']:.2f} um (with the machine's "
+                         f"constant translations, which read exactly like a centring)")
         lines.extend(_timing_lines(r.get("timing") or {"model": "plan"}))
     for w in report["warnings"]:
         lines.append(f"WARNING: {w}")
@@ -33,7 +46,7 @@ def summary_text(report: dict) -> str:
     g = dict(report["geometry"])
     g.pop("recordings", None)
     g["warnings"] = report["warnings"] and ["see the warnings above"]
-    lines.append(geometry_text(g))
+    lines.append(geometry_text(g, setup=False))
     alias = report["aliasing"]
     lines.append("")
     if alias:
@@ -49,12 +62,26 @@ def summary_text(report: dict) -> str:
         lines.append("No effect found takes more than a third of the certainty of a determined "
                      "combination: dynamics and geometry are separated by these recordings.")
     lines.append("")
-    lines.append("EFFECTS across the recordings:")
-    if not report["across_recordings"]:
+    lines.append("EFFECTS across the recordings (where found; an effect found in several "
+                 "recordings as their weighted mean, +- k=2):")
+    across = {k: v for k, v in report["across_recordings"].items() if k not in SETUP_EFFECTS}
+    if not across:
         lines.append("  none found beyond the set-up.")
-    for eff, hits in report["across_recordings"].items():
-        lines.append(f"  {eff}: " + "; ".join(
-            f"{h['program']} ({h['confidence']}, {h['contribution_rms_um']:.2f} um RMS)" for h in hits))
+    for eff, hits in across.items():
+        lines.append(f"  {effect_name(eff)}: " + "; ".join(
+            f"{h['program']} ({h['confidence']} confidence, {h['contribution_rms_um']:.2f} um RMS)"
+            for h in hits))
+        for p in pooled(hits):
+            if p["value"] is not None:
+                spread = (f", the recordings scatter {p['birge']:.1f} times their uncertainty"
+                          if p["birge"] and p["birge"] > 1.05 else "")
+                lines.append(f"    {p['label']} {p['value']:.4g} +- {2 * p['std']:.2g} "
+                             f"{p['unit']}{spread}")
+            else:
+                rng = (f"{p['low']:.4g}" if p["low"] == p["high"]
+                       else f"{p['low']:.4g} to {p['high']:.4g}")
+                lines.append(f"    {p['label']} {rng} {p['unit']} (on the search grid, no "
+                             f"uncertainty" + (f"; {p['note']}" if p["note"] else "") + ")")
     for r in report["recordings"]:
         lines.append("")
         lines.append(f"RECORDING {r['file']} ({r['program']}):")
@@ -113,15 +140,19 @@ def _num(v) -> str:
 
 
 def _diagnosis_text(d: dict) -> str:
-    lines = [f"  gap RMS {d['gap']['rms_um']:.3f} um, noise {d['noise_um']:.3f} um"]
-    if not d["findings"]:
+    lines = [f"  gap RMS {d['gap']['rms_um']:.3f} um (the reading against the ideal one, set-up "
+             f"included), noise {d['noise_um']:.3f} um"]
+    found = [f for f in d["findings"] if f["effect"] not in SETUP_EFFECTS]
+    if not found:
         lines.append("  findings: none beyond the set-up")
-    for f in d["findings"]:
-        par = parameters_text(f["parameters"], f.get("parameter_std", {}))
-        name = " or ".join([f["effect"], *f.get("ambiguous_with", [])])
-        lines.append(f"  {f['rank']}. {name} ({f['confidence']} confidence): {par}")
-        lines.append(f"     held-out RMS {f['heldout_rms_before_um']:.3f} -> "
-                     f"{f['heldout_rms_after_um']:.3f} um")
+    for k, f in enumerate(found, start=1):
+        par = "; ".join(row_text(r) for r in parameter_rows(f["parameters"],
+                                                             f.get("parameter_std", {})))
+        name = " or ".join(effect_name(e) for e in [f["effect"], *f.get("ambiguous_with", [])])
+        lines.append(f"  {k}. {name} ({f['confidence']} confidence, {f['contribution_rms_um']:.2f} "
+                     f"um RMS): {par}")
+        lines.append(f"     held-out RMS (on samples the fit never saw) "
+                     f"{f['heldout_rms_before_um']:.3f} -> {f['heldout_rms_after_um']:.3f} um")
         if f.get("ambiguous_with"):
             lines.append(f"     AMBIGUOUS: to separate them, {f['separate_by']}")
     u = d["unexplained"]
@@ -144,20 +175,27 @@ def aligned_csv(a: Analysed) -> str:
     return "\n".join(head + rows) + "\n"
 
 
-def file_stem(label: str) -> str:
-    stem = Path(label).stem or "recording"
-    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in stem)[:60]
-
-
-def analysis_files(result: AnalysisResult) -> dict[str, str | bytes]:
-    """Every file ``analyse`` writes (relative path -> content): the report as JSON and
-    text, each recording on its program's time, and the pictures drawn."""
+def analysis_files(result: AnalysisResult, plan: PlanFiles | None = None,
+                   plan_sha256: str = "", conditions: list[tuple[str, str]] | None = None,
+                   html: bool = True) -> dict[str, str | bytes]:
+    """Every file ``analyse`` writes (relative path -> content): the analysis as JSON and
+    text, the test report (``report.html``, with ``plan``), each recording on its
+    program's time, and the pictures drawn.  ``plan_sha256`` (of the plan's plan.json)
+    ties the analysis to its plan."""
     report = result.to_json()
+    if plan is not None:
+        report["plan"] = {"plan_json_sha256": plan_sha256, "controller": plan.ran_on}
     files: dict[str, str | bytes] = {"analysis.json": json.dumps(report, indent=2) + "\n",
                                      "analysis.txt": summary_text(report)}
+    if plan is not None and html:
+        devs = deviations(plan, [(a.program, np.asarray(a.trace.t_s, float),
+                                  np.asarray(a.trace.delta_l_um, float))
+                                 for a in result.recordings])
+        files["report.html"] = report_html(plan, plan_sha256, report, devs, conditions)
     for a in result.recordings:
-        stem = f"{a.program}_{file_stem(a.label)}"
-        files[f"aligned/{stem}.csv"] = aligned_csv(a)
+        name = aligned_name(a.program, a.label)
+        stem = name[:-len(".csv")]
+        files[f"aligned/{name}"] = aligned_csv(a)
         for name, png in a.pictures.items():
             files[f"pictures/{stem}_{name}.png"] = png
     return files

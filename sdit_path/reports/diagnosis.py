@@ -20,7 +20,7 @@ def parameters_text(params: dict, std: dict) -> str:
         if not isinstance(v, float):
             out.append(f"{k} {v}")
         elif std.get(k) is None:
-            out.append(f"{k} {v:.4g} (grid search)")
+            out.append(f"{k} {v:.4g} (on the search grid, no uncertainty)")
         else:
             out.append(f"{k} {v:.4g} +- {std[k]:.2g}")
     return ", ".join(out)

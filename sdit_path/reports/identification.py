@@ -6,7 +6,9 @@ import re
 import textwrap
 
 
-def summary_text(report: dict, max_combinations: int = 20) -> str:
+def summary_text(report: dict, max_combinations: int = 20, setup: bool = True) -> str:
+    """The identification in words; ``setup=False`` leaves the set-up (centring, bar
+    length) to the caller, which reports it once with its recording."""
     lines = []
     m = report["model"]
     lines.append(f"Identification from {report['samples']} samples of "
@@ -38,6 +40,7 @@ def summary_text(report: dict, max_combinations: int = 20) -> str:
         lines.append(f"  {k:2d}. {c['text']}")
     if len(report["combinations"]) > max_combinations:
         lines.append(f"  ... and {len(report['combinations']) - max_combinations} more (see --json)")
+    lines += figures_lines(report.get("figures", ()))
     ind = report["identifiable_parameters"]
     if ind:
         lines.append("Parameters determined individually:")
@@ -50,15 +53,8 @@ def summary_text(report: dict, max_combinations: int = 20) -> str:
     # every one of them, wrapped: a list cut short hides the one a reader looks for
     lines += textwrap.wrap(f"Not determined individually ({len(na)}): {', '.join(na)}.", 88,
                            subsequent_indent="  ", break_on_hyphens=False)
-    lines.append("")
-    lines.append("Set-up nuisances (estimated, not machine errors). The ball centring also "
-                 "absorbs the machine's constant translations: a constant offset between "
-                 "the tool ball and the pivot, as seen from the table, reads exactly as a "
-                 "centring error, so these are not the operator's centring alone:")
-    for n in report["nuisances"]:
-        c = n["centring_um"]
-        lines.append(f"  {n['program']}: ball centring ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) um, "
-                     f"bar length offset {n['bar_length_um']:.2f} um")
+    if setup:
+        lines += _setup_lines(report)
     if "prior_estimates" in report:
         lines.append("")
         lines.append("Every parameter under a prior (Tikhonov; each ~ a typical error). "
@@ -92,6 +88,35 @@ def summary_text(report: dict, max_combinations: int = 20) -> str:
             worst = ", ".join(f"{k} (O4 {v['O4']:.2g})" for k, v in segs[:5])
             lines.append(f"  weakest test segments: {worst}")
     return "\n".join(lines)
+
+
+def _setup_lines(report: dict) -> list[str]:
+    lines = ["", "Set-up (estimated, not machine errors). The ball centring also absorbs the "
+                 "machine's constant translations: a constant offset between the tool ball and "
+                 "the pivot, as seen from the table, reads exactly as a centring error, so "
+                 "these are not the operator's centring alone:"]
+    for n in report["nuisances"]:
+        c = n["centring_um"]
+        lines.append(f"  {n['program']}: ball centring ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) um, "
+                     f"bar length offset {n['bar_length_um']:.2f} um")
+    return lines
+
+
+def figures_lines(figures) -> list[str]:
+    """Squareness and scale mismatch as a ballbar reads them, with their expanded
+    uncertainty (k=2); those the data do not determine, with what they would need."""
+    if not figures:
+        return []
+    out = ["In the trade's terms (the tool's motion relative to the table, as a ballbar reads "
+           "it; +- is the expanded uncertainty, k=2):"]
+    for f in figures:
+        if f["determined"]:
+            out.append(f"  {f['name']:<20} {f['estimate']:+9.2f} +- {2 * f['std']:.2f} "
+                       f"{f['unit']:<5} {f['meaning']}")
+        else:
+            out.append(f"  {f['name']:<20} not determined: it depends on "
+                       f"{', '.join(f['needs']) or 'parameters'} beyond what the data see")
+    return out
 
 
 #: a test segment's id: layer, sector, sub-segment (D3-2)

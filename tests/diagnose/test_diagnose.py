@@ -579,7 +579,7 @@ def test_the_report_says_why_the_timing_is_wider_and_prints_each_uncertainty():
                     {}).freeze()
     text = summary_text(d)
     assert "Its uncertainty takes in: read without the crawls" in text
-    assert "stick_um 8.6 (grid search), mean_lag_X_um 0.89 +- 0.014, amplitude_X_um 0.15 +- 0.043" in text
+    assert "stick_um 8.6 (on the search grid, no uncertainty), mean_lag_X_um 0.89 +- 0.014, amplitude_X_um 0.15 +- 0.043" in text
     assert "not determined apart from the other parameters" in text and "amplitude_Y_um" in text
     assert d.to_json()["alignment"]["widened_by"] == list(wide.widened_by)
 
