@@ -1,16 +1,24 @@
 #!/usr/bin/env bash
 # Set up everything the tests need on a fresh Debian machine and run them:
-# Debian's linuxcnc-uspace (the LinuxCNC interpreter used as an oracle), a virtual
+# Debian's linuxcnc-uspace (the LinuxCNC interpreter used as an oracle) and chromium (the
+# report in a real browser), a virtual
 # environment with sdit-path and its test extras, then pytest.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 
-if ! dpkg -s linuxcnc-uspace >/dev/null 2>&1; then
-    echo "== installing Debian's linuxcnc-uspace (LinuxCNC interpreter for the oracle tests)"
+# linuxcnc-uspace: LinuxCNC's interpreter and motion planner for the oracle tests;
+# chromium and poppler-utils: the report opened, shot and printed in a real browser
+NEED=""
+for pkg in linuxcnc-uspace chromium poppler-utils; do
+    dpkg -s "$pkg" >/dev/null 2>&1 || NEED="$NEED $pkg"
+done
+if [ -n "$NEED" ]; then
+    echo "== installing Debian's$NEED"
     as_root apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq linuxcnc-uspace >/dev/null
+    # shellcheck disable=SC2086
+    DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq $NEED >/dev/null
 fi
 
 PY=${PYTHON:-python3}

@@ -135,11 +135,15 @@ def plan_command(config: str | None, out_dir: str, force: bool, skip_infeasible:
 @click.option("--force", is_flag=True,
               help="Replace DIR if it holds only an earlier output of this command.")
 @click.option("--skip-infeasible", is_flag=True, help="As for plan.")
+@click.option("--plan", "plan_dir", type=click.Path(file_okay=False), default=None,
+              help="Draw a plan as written (a directory of sdit-path plan) instead of "
+                   "planning CONFIG again.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress.")
 def preview_command(config: str | None, out_dir: str, feed: float | None, force: bool,
-                    skip_infeasible: bool, quiet: bool) -> None:
+                    skip_infeasible: bool, plan_dir: str | None, quiet: bool) -> None:
     """Feed-profile pictures per layer: path speed over time, per-axis velocity,
-    acceleration and jerk against their limits, and the hemisphere coloured by speed."""
+    acceleration and jerk against their limits, and the hemisphere coloured by speed
+    (by time where the speed holds the feed), with each layer's start and direction."""
     import dataclasses
 
     from .plan.configure import load_config
@@ -150,6 +154,28 @@ def preview_command(config: str | None, out_dir: str, feed: float | None, force:
     from .reports.preview import preview_files
 
     try:
+        if plan_dir is not None:
+            from pathlib import Path
+
+            from .plan.files import load_plan
+            from .plan.preview import preview_of_plan
+
+            for name, given in (("CONFIG", config), ("--feed", feed),
+                                ("--skip-infeasible", skip_infeasible or None)):
+                if given is not None:
+                    raise ConfigError(name, "not with --plan: the plan as written is drawn "
+                                            "(plan again to change it)")
+            plan_files = load_plan(plan_dir)
+            protect = (Path(plan_dir) / "plan.json",)
+            check_output(out_dir, force, "preview", protect)
+            with _Steps(quiet, len(plan_files.program_names), "reading the plan") as step:
+                pv = preview_of_plan(plan_files)
+                files = preview_files(pv, on_step=step)
+                out = write_tree(out_dir, files, force=force, command="preview",
+                                 protect=protect)
+            if not quiet:
+                Console().print(f"wrote {len(files)} pictures to {out}/ (timing: {pv.timing})")
+            return
         cfg = load_config(config)
         protect = (cfg.source,) if config else ()
         check_output(out_dir, force, "preview", protect)
@@ -520,7 +546,7 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, jobs, quie
     from .plan.files import load_plan
     from .replan import replan
     from .replan.run import analysis_file_reasons, replanned_plan
-    from .reports.replan import replan_files
+    from .reports.replan import replan_files, report_text
 
     try:
         old = load_plan(plan_dir)
@@ -531,6 +557,13 @@ def replan_command(plan_dir, segments, analysis_file, out_dir, force, jobs, quie
         with _Steps(quiet, None, "reviewing the plan") as step:
             result = replan(old, list(segments) or None, on_step=step.note, measured=measured,
                             on_stage=step, jobs=jobs or default_jobs())
+            if not result.changed:
+                text = report_text(result) + (
+                    f"Nothing changed: every sector keeps its curve, so no plan is written "
+                    f"({out_dir} is left as it was).\n")
+                if not quiet:
+                    click.echo(text, nl=False)
+                return
             step("planning with the chosen curves")
             planned = replanned_plan(old, result, on_step=step.note)
             files = replan_files(result, planned, str(Path(plan_dir).name), on_step=step.note)

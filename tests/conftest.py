@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sdit_path.config import load_config, parse_config, sample_path
@@ -118,3 +119,46 @@ def golden_plans(tmp_path_factory) -> dict:
                             str(out[name]), "-q"], capture_output=True, text=True, timeout=900)
         assert r.returncode == 0, r.stderr
     return out
+
+
+def run(*args, timeout=1200):
+    return subprocess.run([sys.executable, "-m", "sdit_path", *args], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def geometry_file(path, seed):
+    """Random geometry of a few um and tens of urad (linear order 1 + squareness)."""
+    rng = np.random.default_rng(seed)
+    values = {}
+    for axis in "XYZ":
+        for comp in "XYZ":
+            values[f"E{comp}{axis}"] = rng.normal(0, 3.0)
+            values[f"E{comp}{axis}.P1"] = rng.normal(0, 3.0)
+        for comp in "ABC":
+            values[f"E{comp}{axis}"] = rng.normal(0, 20.0)
+    for sq in ("EC0Y", "EB0Z", "EA0Z"):
+        values[sq] = rng.normal(0, 30.0)
+    body = "\n".join(f'"{k}" = {v:.4f}' for k, v in values.items())
+    path.write_text(f'name = "hidden {seed}"\n\n[model]\nlinear_order = 1\nsquareness = true\n'
+                    f"\n[values]\n{body}\n")
+    return values
+
+
+@pytest.fixture(scope="session")
+def recorded(tmp_path_factory, golden_plans):
+    root = tmp_path_factory.mktemp("analyse")
+    plan = golden_plans["fast"]
+    truth = geometry_file(root / "hidden.toml", seed=7)
+    files = []
+    for k, (prog, lead, ppm) in enumerate((("GOLD_A", 6.0, 90.0), ("GOLD_B", 11.0, -140.0))):
+        rec = root / f"rec{k}.csv"
+        r = run("perturb", "--plan", str(plan), "--program", prog, "--model",
+                str(root / "hidden.toml"), "--effect", "servo_mismatch:axis=Y,extra_lag_ms=2.0",
+                "--lead-s", str(lead), "--clock-ppm", str(ppm), "--noise-um", "0.2",
+                "--out", str(rec), "--truth", str(root / f"truth{k}.json"), "-q")
+        assert r.returncode == 0, r.stderr
+        files.append(rec)
+    out = root / "out"
+    r = run("analyse", "--plan", str(plan), "--measured", str(files[1]), "--measured",
+            str(files[0]), "--out", str(out), "--no-pictures")
+    return {"root": root, "plan": plan, "files": files, "truth": truth, "out": out, "run": r}

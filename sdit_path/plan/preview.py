@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..timing.trajectory import Samples, Timer, sample
+from .files import PlanFiles
 from .pipeline import PlanResult
 
 
@@ -77,3 +78,28 @@ def preview(result: PlanResult, rate_hz: float = 1000.0) -> Preview:
                    tuple(float(np.degrees(t.elevation_rad)) for t in hemi.tracks),
                    tuple((n.id, n.position_mm) for n in hemi.nodes), cfg.test.feed_mm_per_min,
                    TIMING_TITLES[cfg.timing.control], TIMING_NOTES[cfg.timing.control])
+
+
+def preview_of_plan(plan: PlanFiles) -> Preview:
+    """The preview of a plan as written (``plan``'s directory): its trajectories read
+    back, not planned again."""
+    cfg = plan.config
+    limits = {}
+    for ax in cfg.machine.axes:
+        scale = np.degrees(1.0) if ax.kind == "rotary" else 1.0
+        limits[ax.name] = (ax.max_velocity * scale, ax.max_acceleration * scale,
+                           ax.max_jerk * scale)
+    m = plan.manifest
+    layers = []
+    for p in m.get("programs", ()):
+        if p.get("controller") != plan.ran_on or "layer" not in p:
+            continue
+        layers.append(LayerPreview(p["name"], p["layer"], float(p["cycle_time_s"]),
+                                   plan.trajectory(p["name"])))
+    sphere = m["sphere"]
+    return Preview(tuple(layers), limits, np.array(sphere["centre_mm"], float),
+                   float(sphere["radius_mm"]),
+                   tuple(float(t["elevation_deg"]) for t in m.get("tracks", ())),
+                   tuple((n["id"], np.array(n["position_mm"], float)) for n in m["nodes"]),
+                   float(m["test"]["feed_mm_per_min"]), TIMING_TITLES[cfg.timing.control],
+                   TIMING_NOTES[cfg.timing.control])

@@ -17,13 +17,15 @@ number and the limit it broke:
   geometry;
 - ``rotary_rate``: a rotary axis that would turn faster than its limit at the feed;
 - ``information``: the segment's share of the information of the combinations the
-  whole test determines, per share of the test's time: a segment that costs time and
-  adds little.
+  whole test determines, per share of the test's time, against the median of its
+  layer's test segments: a segment that adds far less for its time than its neighbours
+  on the same band of the sphere.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -43,6 +45,11 @@ from ..timing.trajectory import Samples, Timer, axis_values_rad, sample
 
 
 
+#: a test segment's id (D3-2) and its layer; transits between nodes (A-1>B-1) run in
+#: every plan and are judged only on what makes them unsafe
+_TEST = re.compile(r"^([A-Z]+)\d+-\d+$")
+
+
 @dataclass(frozen=True, slots=True)
 class Limits:
     """Where a segment's value makes it bad (see the module text)."""
@@ -53,7 +60,11 @@ class Limits:
     speed_ratio: float = 0.9
     acceleration_ratio: float = 0.5
     servo_over_median: float = 1.5
-    information_per_time: float = 0.25
+    #: a test segment's information per time share below this share of its layer's
+    #: median: a curve its neighbours on the same band of the sphere do better.  (A
+    #: whole layer low in information is the sphere's geometry, the cap seeing little of
+    #: the linear axes, not a curve to re-plan.)
+    information_of_layer: float = 0.1
 
 
 @dataclass(frozen=True, slots=True)
@@ -337,6 +348,12 @@ def judge(cfg: Config, values: dict[str, dict], limits: Limits,
     """Every reason that makes each segment bad (segments with none are left out);
     ``median``: the servo sensitivity's yardstick (default: the median of ``values``)."""
     median = servo_median(values) if median is None else median
+    layer_info: dict[str, list[float]] = {}
+    for sid, v in values.items():
+        m = _TEST.match(sid)
+        if m and v.get("information_per_time") is not None:
+            layer_info.setdefault(m.group(1), []).append(v["information_per_time"])
+    info_median = {k: float(np.median(x)) for k, x in layer_info.items()}
     out: dict[str, list[Reason]] = {}
     for sid, v in values.items():
         r = []
@@ -379,10 +396,14 @@ def judge(cfg: Config, values: dict[str, dict], limits: Limits,
             r.append(Reason("rotary_rate", float(n), 0.0, "warnings",
                             f"a rotary axis would turn faster than its limit ({n} warning(s))"))
         ip = v.get("information_per_time")
-        if ip is not None and ip < limits.information_per_time:
-            r.append(Reason("information", ip, limits.information_per_time, "of its time share",
-                            f"adds {ip:.2f} of its share of the test's time to the determined "
-                            f"combinations' information"))
+        m = _TEST.match(sid)
+        lay = info_median.get(m.group(1)) if m else None
+        if ip is not None and lay and ip < limits.information_of_layer * lay:
+            lim = limits.information_of_layer * lay
+            r.append(Reason("information", ip, lim, "of its time share",
+                            f"adds {ip:.3f} of its share of the test's time to the determined "
+                            f"combinations' information, {ip / lay:.0%} of its layer's median "
+                            f"({lay:.3f}): its neighbours on the same band do better"))
         if r:
             out[sid] = r
     return out

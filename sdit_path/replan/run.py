@@ -39,6 +39,12 @@ class Replan:
     asked: list[str]  # segments named by the user (empty: found)
     setup: dict[str, list[dict]] = field(default_factory=dict)  # layer -> set-up changes tried
 
+    @property
+    def changed(self) -> bool:
+        """Does any sector get a new curve?  (If not, the re-planned plan would be the
+        old one: nothing is written.)"""
+        return any(c.curve is not None for c in self.chosen.values())
+
     def to_json(self) -> dict:
         """The re-plan as ``replan.json`` and the plan's manifest hold it (JSON has no
         infinities: a value that is not finite is null)."""

@@ -14,7 +14,7 @@ from ..analyse.sphere import deviations
 from ..analyse.stored import aligned_name
 from ..plan.files import PlanFiles
 from .html import report_html
-from .vocabulary import SETUP_EFFECTS, effect_name, parameter_rows, pooled, row_text
+from .vocabulary import effect_name, is_setup, parameter_rows, pooled, row_text
 from .identification import summary_text as geometry_text
 
 
@@ -64,14 +64,14 @@ def summary_text(report: dict) -> str:
     lines.append("")
     lines.append("EFFECTS across the recordings (where found; an effect found in several "
                  "recordings as their weighted mean, +- k=2):")
-    across = {k: v for k, v in report["across_recordings"].items() if k not in SETUP_EFFECTS}
+    across = {k: v for k, v in report["across_recordings"].items() if not is_setup(k)}
     if not across:
         lines.append("  none found beyond the set-up.")
     for eff, hits in across.items():
         lines.append(f"  {effect_name(eff)}: " + "; ".join(
             f"{h['program']} ({h['confidence']} confidence, {h['contribution_rms_um']:.2f} um RMS)"
             for h in hits))
-        for p in pooled(hits):
+        for p in pooled(hits, eff):
             if p["value"] is not None:
                 spread = (f", the recordings scatter {p['birge']:.1f} times their uncertainty"
                           if p["birge"] and p["birge"] > 1.05 else "")
@@ -142,12 +142,12 @@ def _num(v) -> str:
 def _diagnosis_text(d: dict) -> str:
     lines = [f"  gap RMS {d['gap']['rms_um']:.3f} um (the reading against the ideal one, set-up "
              f"included), noise {d['noise_um']:.3f} um"]
-    found = [f for f in d["findings"] if f["effect"] not in SETUP_EFFECTS]
+    found = [f for f in d["findings"] if not is_setup(f["effect"])]
     if not found:
         lines.append("  findings: none beyond the set-up")
     for k, f in enumerate(found, start=1):
-        par = "; ".join(row_text(r) for r in parameter_rows(f["parameters"],
-                                                             f.get("parameter_std", {})))
+        par = "; ".join(row_text(r) for r in parameter_rows(
+            f["parameters"], f.get("parameter_std", {}), f["effect"]))
         name = " or ".join(effect_name(e) for e in [f["effect"], *f.get("ambiguous_with", [])])
         lines.append(f"  {k}. {name} ({f['confidence']} confidence, {f['contribution_rms_um']:.2f} "
                      f"um RMS): {par}")
@@ -161,6 +161,14 @@ def _diagnosis_text(d: dict) -> str:
                  + (": strongest in " + ", ".join(u["where"]["segments"][:6])
                     if u["significant"] and u.get("where", {}).get("segments") else ""))
     return "\n".join(lines)
+
+
+def _columns(text: str) -> tuple[np.ndarray, np.ndarray]:
+    """``t_s, delta_l_um`` of an aligned CSV as :func:`aligned_csv` writes it."""
+    rows = [ln.split(",") for ln in text.splitlines()
+            if ln and not ln.startswith("#") and not ln.startswith("t_s")]
+    data = np.array(rows, dtype=float).reshape(-1, 2)
+    return data[:, 0], data[:, 1]
 
 
 def aligned_csv(a: Analysed) -> str:
@@ -187,15 +195,15 @@ def analysis_files(result: AnalysisResult, plan: PlanFiles | None = None,
         report["plan"] = {"plan_json_sha256": plan_sha256, "controller": plan.ran_on}
     files: dict[str, str | bytes] = {"analysis.json": json.dumps(report, indent=2) + "\n",
                                      "analysis.txt": summary_text(report)}
-    if plan is not None and html:
-        devs = deviations(plan, [(a.program, np.asarray(a.trace.t_s, float),
-                                  np.asarray(a.trace.delta_l_um, float))
-                                 for a in result.recordings])
-        files["report.html"] = report_html(plan, plan_sha256, report, devs, conditions)
+    aligned = {}
     for a in result.recordings:
         name = aligned_name(a.program, a.label)
-        stem = name[:-len(".csv")]
-        files[f"aligned/{name}"] = aligned_csv(a)
-        for name, png in a.pictures.items():
-            files[f"pictures/{stem}_{name}.png"] = png
+        aligned[a.program] = files[f"aligned/{name}"] = aligned_csv(a)
+        for pic, png in a.pictures.items():
+            files[f"pictures/{name[:-len('.csv')]}_{pic}.png"] = png
+    if plan is not None and html:
+        # read from the aligned files as written, as ``sdit-path report`` reads them: the
+        # same report either way
+        devs = deviations(plan, [(prog, *_columns(text)) for prog, text in aligned.items()])
+        files["report.html"] = report_html(plan, plan_sha256, report, devs, conditions)
     return files

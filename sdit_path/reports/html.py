@@ -17,7 +17,7 @@ import re
 from ..analyse.sphere import LayerDeviation
 from ..plan.files import PlanFiles
 from . import report_pictures as pics
-from .vocabulary import SETUP_EFFECTS, effect_name, parameter_rows, pooled
+from .vocabulary import HEADLINE, effect_name, in_geometry, is_setup, parameter_rows, pooled
 
 #: the report's generator mark: ``report --force`` replaces only a file carrying it
 GENERATOR = "sdit-path report"
@@ -37,6 +37,7 @@ tr { break-inside: avoid; page-break-inside: avoid; }
 th, td { border-bottom: 0.6px solid #ccc; padding: 1.4px 4px; text-align: left;
          vertical-align: top; }
 th { background: #eef1f5; font-weight: 600; }
+table.results td:first-child { white-space: nowrap; }
 td.n { text-align: right; white-space: nowrap; font-variant-numeric: tabular-nums; }
 code, .mono { font-family: "DejaVu Sans Mono", monospace; font-size: 7.6pt;
               word-break: break-all; }
@@ -66,14 +67,17 @@ def _img(png: bytes, alt: str, caption: str = "", width: str = "100%") -> str:
             f'style="width:{width}">{cap}</figure>')
 
 
-def _table(head: list[str], rows: list[list[str]], numeric: set[int] = frozenset()) -> str:
-    h = "".join(f"<th>{_e(x)}</th>" for x in head)
+def _table(head: list[str], rows: list[list[str]], numeric: set[int] = frozenset(),
+           css: str = "") -> str:
+    h = "".join(f"<th>{x}</th>" for x in head)
     body = []
     for r in rows:
         cells = "".join(f'<td class="n">{c}</td>' if k in numeric else f"<td>{c}</td>"
                         for k, c in enumerate(r))
         body.append(f"<tr>{cells}</tr>")
-    return f"<table><thead><tr>{h}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+    cls = f' class="{css}"' if css else ""
+    thead = f"<thead><tr>{h}</tr></thead>" if any(head) else ""
+    return f"<table{cls}>{thead}<tbody>{''.join(body)}</tbody></table>"
 
 
 def _f(v, digits: int = 2) -> str:
@@ -152,7 +156,8 @@ def _summary(a: dict) -> str:
                          _e(f"these recordings do not separate it from {needs}")])
     across = a.get("across_recordings", {})
     n_rec = len(a["recordings"])
-    for effect in ("servo_mismatch", "backlash", "reversal_spike", "cyclic_error"):
+    options = g.get("model", {}).get("options", {})
+    for effect in HEADLINE:
         hits = across.get(effect)
         if not hits:
             rows.append([_e(effect_name(effect)), "not found", "",
@@ -160,9 +165,7 @@ def _summary(a: dict) -> str:
             continue
         rows += _pooled_rows(effect, hits, n_rec)
     for effect, hits in across.items():
-        if effect in SETUP_EFFECTS or effect in ("servo_mismatch", "backlash", "reversal_spike",
-                                                 "cyclic_error", "squareness", "scale_mismatch",
-                                                 "geometry_beyond_library"):
+        if is_setup(effect) or effect in HEADLINE or in_geometry(effect, options):
             continue
         rows += _pooled_rows(effect, hits, n_rec)
     out = ['<h2>Results</h2>',
@@ -171,7 +174,8 @@ def _summary(a: dict) -> str:
            'tool\'s motion relative to the table as a ballbar reads it, over the whole '
            'tested hemisphere, estimated together with the dynamic effects below; a dynamic '
            'effect found in several layers is their weighted mean.</p>',
-           _table(["quantity", "value ± U (k=2)", "unit", "what it is"], rows, {1})]
+           _table(["quantity", "value ± U (k=2)", "unit", "what it is"], rows, {1},
+                  "results")]
     unexpl = [r for r in a["recordings"] if r["diagnosis"]["unexplained"]["significant"]]
     noise = [r["diagnosis"]["noise_um"] for r in a["recordings"]]
     verdict = (f"{len(unexpl)} of {n_rec} recordings hold a reading the library does not "
@@ -185,7 +189,7 @@ def _summary(a: dict) -> str:
 def _pooled_rows(effect: str, hits: list[dict], n_rec: int) -> list[list[str]]:
     rows = []
     progs = ", ".join(h["program"] for h in hits)
-    for p in pooled(hits):
+    for p in pooled(hits, effect):
         name = f"{effect_name(effect)}: {p['label']}"
         if p["value"] is not None:
             d = _digits(p["std"])
@@ -364,7 +368,7 @@ def _findings(plan: PlanFiles, a: dict) -> str:
     items = []
     for r in a["recordings"]:
         for f in r["diagnosis"]["findings"]:
-            if f["effect"] in SETUP_EFFECTS:
+            if is_setup(f["effect"]):
                 continue
             items.append((f["contribution_rms_um"], r, f))
     items.sort(key=lambda x: (-x[0], x[1]["program"], x[2]["effect"]))
@@ -378,7 +382,7 @@ def _findings(plan: PlanFiles, a: dict) -> str:
         out.append("<p>None: every recording is explained by the set-up and the geometry.</p>")
     trajectories: dict[str, object] = {}
     for k, (contrib, r, f) in enumerate(items, start=1):
-        params = parameter_rows(f["parameters"], f.get("parameter_std", {}))
+        params = parameter_rows(f["parameters"], f.get("parameter_std", {}), f["effect"])
         plist = "<br>".join(
             f"{_e(p['label'])}: " + (_pm(p["value"], p["std"], _digits(p["std"]))
                                      if p["std"] is not None else f"{p['value']:.4g}")

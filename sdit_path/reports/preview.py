@@ -91,7 +91,9 @@ def speed_figure(s: Samples, title: str, feed_mm_per_min: float) -> bytes:
     ax.set_xlabel("time from program start (s)")
     ax.set_ylabel("path speed (mm/s)")
     ax.set_title(title + ": path speed (grey: dwells at static nodes)")
-    ax.legend(loc="upper right", fontsize=8)
+    # below the axes: inside, it would hide the last dwells' names
+    ax.legend(loc="upper right", bbox_to_anchor=(1.0, -0.12), fontsize=8, ncol=2,
+              frameon=False)
     fig.tight_layout()
     return _png(fig)
 
@@ -167,24 +169,49 @@ def hemisphere_figure(s: Samples, others: list[np.ndarray], centre: np.ndarray, 
     moving = s.phase != "dwell"
     p = s.ball_mm[moving][::5]
     v = s.speed_mm_per_s[moving][::5]
+    tt = s.t_s[moving][::5]
+    by_speed = _speed_varies(s, feed_mm_per_min)
     if len(p) > 1:
-        seg = np.stack([p[:-1], p[1:]], axis=1)
-        lc = Line3DCollection(seg, cmap="viridis", lw=2.0)
-        lc.set_array(v[:-1])
-        lc.set_clim(0, feed_mm_per_min / 60.0)
-        ax.add_collection(lc)
         from matplotlib.collections import LineCollection
 
-        lc2 = LineCollection(seg[:, :, :2], cmap="viridis", lw=2.0)
-        lc2.set_array(v[:-1])
-        lc2.set_clim(0, feed_mm_per_min / 60.0)
+        seg = np.stack([p[:-1], p[1:]], axis=1)
+        # where the speed holds the feed, colour by time: the order the path is run in
+        values, cmap, clim, label = ((v[:-1], "viridis", (0, feed_mm_per_min / 60.0),
+                                      "path speed (mm/s)") if by_speed else
+                                     (tt[:-1], "plasma", (0, float(s.t_s[-1])),
+                                      "time from program start (s); the speed holds the feed"))
+        lc = Line3DCollection(seg, cmap=cmap, lw=2.0)
+        lc.set_array(values)
+        lc.set_clim(*clim)
+        ax.add_collection(lc)
+        lc2 = LineCollection(seg[:, :, :2], cmap=cmap, lw=2.0)
+        lc2.set_array(values)
+        lc2.set_clim(*clim)
         top.add_collection(lc2)
-        fig.colorbar(lc2, ax=top, shrink=0.8, label="path speed (mm/s)")
+        fig.colorbar(lc2, ax=top, shrink=0.8, label=label)
+        # the start (a star) and the direction (arrows along the first forward run)
+        ax.scatter(*p[0], marker="*", s=160, color="black", zorder=5)
+        top.plot(p[0, 0], p[0, 1], "*", ms=14, color="black", zorder=5, label="start")
+        for frac in (0.03, 0.12, 0.25, 0.38):
+            i = int(frac * len(p))
+            j = min(i + max(len(p) // 200, 2), len(p) - 1)
+            top.annotate("", (p[j, 0], p[j, 1]), (p[i, 0], p[i, 1]), zorder=6,
+                         arrowprops={"arrowstyle": "-|>", "color": "black", "lw": 1.2,
+                                     "mutation_scale": 12})
+        top.legend(loc="upper right", bbox_to_anchor=(1.0, -0.08), fontsize=8, frameon=False)
+    lowest = min(tracks) if tracks else 0.0
     for name, pos in nodes:
         ax.scatter(*pos, color="tab:red", s=10)
         top.scatter(pos[0], pos[1], color="tab:red", s=10, zorder=3)
-        top.annotate(name, (pos[0], pos[1]), fontsize=6, xytext=(2, 2),
-                     textcoords="offset points")
+        # names outside the lowest track, inside the others: the tracks lie close
+        # together near the equator seen from above (A-4 beside B-4)
+        d = pos[:2] - c[:2]
+        n = float(np.hypot(*d))
+        el = float(np.degrees(np.arcsin(np.clip((pos[2] - c[2]) / r, -1, 1))))
+        out = 1.0 if abs(el - lowest) < 1e-6 else -1.0
+        off = (d / n * 9.0 * out) if n > 1e-9 else np.array([0.0, 6.0])
+        top.annotate(name, (pos[0], pos[1]), xytext=(off[0], off[1]), fontsize=6,
+                     textcoords="offset points", ha="center", va="center")
     ax.scatter(*c, color="k", s=12)
     ax.set_xlim(c[0] - r, c[0] + r)
     ax.set_ylim(c[1] - r, c[1] + r)
@@ -198,9 +225,21 @@ def hemisphere_figure(s: Samples, others: list[np.ndarray], centre: np.ndarray, 
     top.set_xlabel("x (mm)")
     top.set_ylabel("y (mm)")
     top.set_title("seen from above (+Z)", fontsize=9)
-    fig.suptitle(title + ": path coloured by speed, static nodes red", fontsize=10)
+    fig.suptitle(title + (": path coloured by speed" if by_speed else
+                          ": path coloured by time") + ", static nodes red, start: the star",
+                 fontsize=10)
     fig.tight_layout()
     return _png(fig)
+
+
+def _speed_varies(s: Samples, feed_mm_per_min: float) -> bool:
+    """Does the cruising speed differ from the feed by more than 2 % over more than 1 %
+    of the cruise (a sample at a run's very start is not a speed that varies)?"""
+    cruise = s.phase == "cruise"
+    if not cruise.any():
+        return True
+    off = np.abs(s.speed_mm_per_s[cruise] - feed_mm_per_min / 60.0)
+    return bool(np.percentile(off, 99) > 0.02 * feed_mm_per_min / 60.0)
 
 
 def preview_files(pv: Preview, on_step=None) -> dict[str, bytes]:

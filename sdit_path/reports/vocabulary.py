@@ -1,40 +1,53 @@
 """The words and units a metrologist reads: an effect's parameters as labelled values in
 their usual unit, with what a value without an uncertainty is; the effects of one kind
 found in several recordings brought to one figure; the set-up kept apart from the
-findings."""
+findings.  Every name and note comes from the effect registry's traits."""
 
 from __future__ import annotations
 
 import math
 
-#: effects that are the set-up (reported once, as the set-up), not findings
-SETUP_EFFECTS = ("setup_offset", "bar_length")
+from ..diagnose.effects import EFFECTS
+from ..errormodel.model import ModelOptions
 
-#: an effect's name as the trade says it (the registry's name with spaces otherwise)
-TRADE_NAMES = {"servo_mismatch": "servo mismatch", "servo_lag": "servo lag (equal on all axes)",
-               "reversal_spike": "reversal spike", "cyclic_error": "cyclic error",
-               "thermal_drift": "thermal drift", "contour_smoothing": "contour smoothing",
-               "lateral_play": "lateral play", "stick_slip": "stick-slip",
-               "scale_mismatch": "scale mismatch"}
+_BY_NAME = {e.name: e for e in EFFECTS}
+
+#: the effects the report's first page lists even where no recording shows them
+HEADLINE = tuple(e.name for e in sorted((e for e in EFFECTS if e.headline is not None),
+                                        key=lambda e: e.headline))
 
 #: parameter-name suffix -> unit, longest first
 _UNITS = (("_um_per_m", "um/m"), ("_mm_s", "mm/s"), ("_per_s", "1/s"), ("_urad", "urad"),
           ("_ms", "ms"), ("_um", "um"), ("_hz", "Hz"), ("_deg", "deg"), ("_mm", "mm"),
           ("_s", "s"))
 
-#: what a parameter is, where its name alone does not say it
-_MEANING = {
-    "common_lag_ms": "the servo lag all axes share; it moves the whole reading in time as "
-                     "the recording's start does, so the two are read together",
-    "tau_ms": "the time constant of the decay",
-    "onset_mm_s": "the axis speed at which the pulse begins",
-    "rise_ms": "the pulse's rise time",
-    "kv_per_s": "the position loop gain (1 / lag)",
-}
-
 
 def effect_name(effect: str) -> str:
-    return TRADE_NAMES.get(effect, effect.replace("_", " "))
+    """An effect's name as the trade says it."""
+    cls = _BY_NAME.get(effect)
+    return (cls.trade_name if cls is not None and cls.trade_name else
+            effect.replace("_", " "))
+
+
+def is_setup(effect: str) -> bool:
+    """Is the effect part of the mounting (reported once, as the set-up)?"""
+    cls = _BY_NAME.get(effect)
+    return bool(cls is not None and cls.mounting)
+
+
+def in_geometry(effect: str, options: dict) -> bool:
+    """Does the identification's model (its options as the JSON gives them) hold what
+    the effect reads, so that the geometry's figures report it?"""
+    cls = _BY_NAME.get(effect)
+    try:
+        return bool(cls is not None and cls.covered_by(ModelOptions(**options)))
+    except TypeError:
+        return False
+
+
+def _note(effect: str | None, key: str) -> str:
+    cls = _BY_NAME.get(effect or "")
+    return cls.parameter_notes.get(key, "") if cls is not None else ""
 
 
 def split_unit(key: str) -> tuple[str, str]:
@@ -48,7 +61,7 @@ def split_unit(key: str) -> tuple[str, str]:
     return label.replace("_minus_", " - ").replace("_", " "), unit
 
 
-def parameter_rows(params: dict, std: dict) -> list[dict]:
+def parameter_rows(params: dict, std: dict, effect: str | None = None) -> list[dict]:
     """One row per parameter: ``label``, ``value``, ``std`` (k=1; None when the value was
     read off a search grid, which has no uncertainty), ``unit``, ``note``."""
     rows = []
@@ -57,7 +70,7 @@ def parameter_rows(params: dict, std: dict) -> list[dict]:
             continue
         label, unit = split_unit(key)
         s = std.get(key)
-        note = _MEANING.get(key, "")
+        note = _note(effect, key)
         if s is None:
             note = ("read off the search grid, no uncertainty" + (f"; {note}" if note else ""))
         rows.append({"key": key, "label": label, "value": float(value),
@@ -77,7 +90,7 @@ def _g(v: float) -> str:
     return f"{v:.4g}" if abs(v) >= 1e-3 or v == 0 else f"{v:.2e}"
 
 
-def pooled(hits: list[dict]) -> list[dict]:
+def pooled(hits: list[dict], effect: str | None = None) -> list[dict]:
     """An effect found in several recordings, each parameter brought to one figure: the
     inverse-variance mean with its standard uncertainty raised by the Birge ratio where
     the recordings scatter more than their own uncertainties say; for values read off a
@@ -97,7 +110,7 @@ def pooled(hits: list[dict]) -> list[dict]:
         xs = [v for v, _ in vals]
         row = {"key": key, "label": label, "unit": unit, "n": len(vals), "low": min(xs),
                "high": max(xs), "value": None, "std": None, "birge": None,
-               "note": _MEANING.get(key, "")}
+               "note": _note(effect, key)}
         if all(s is not None and s > 0 for _, s in vals):
             w = [1.0 / float(s) ** 2 for _, s in vals]
             mean = sum(wi * x for wi, x in zip(w, xs)) / sum(w)

@@ -154,6 +154,13 @@ class Effect:
     #: the name reports and ``perturb --effect`` use (``servo_lag``), and a short title
     name: ClassVar[str] = ""
     title: ClassVar[str] = ""
+    #: the name as the trade says it in a report ("" : the name with spaces)
+    trade_name: ClassVar[str] = ""
+    #: listed on the report's first page even where no recording shows it (the order);
+    #: None: listed only where found
+    headline: ClassVar[int | None] = None
+    #: what a parameter is, where its name and unit alone do not say it
+    parameter_notes: ClassVar[Mapping[str, str]] = MappingProxyType({})
     #: how common the effect is on a healthy machining centre (0: the most common): the
     #: order that decides between effects the data cannot tell apart (equal evidence)
     commonness: ClassVar[int] = -1
@@ -187,7 +194,7 @@ class Effect:
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
         # the tables a class declares are read-only, its own and not its parent's
-        for key in ("limits", "aliases", "program_aliases"):
+        for key in ("limits", "aliases", "program_aliases", "parameter_notes"):
             value = cls.__dict__.get(key)
             if isinstance(value, dict):
                 setattr(cls, key, MappingProxyType(dict(value)))

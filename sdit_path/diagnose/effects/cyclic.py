@@ -11,6 +11,7 @@ from .base import Effect, gain2, ripple_gains, linear_axes
 
 class CyclicError(Effect):
     name, title = "cyclic_error", "ripple locked to an axis position (scale / screw pitch)"
+    headline = 3
     commonness, geometric = 9, True
     limits = MappingProxyType({"amplitude_um": 5.0})
     pitch_range_mm = (4.0, 25.0)

@@ -19,6 +19,10 @@ class ReversalSpike(Effect):
     bends the timing by about as much."""
 
     name, title = "reversal_spike", "decaying pulse after an axis reversal (friction)"
+    headline = 2
+    parameter_notes = MappingProxyType({"tau_ms": "the time constant of the decay",
+                                        "onset_mm_s": "the axis speed at which the pulse begins",
+                                        "rise_ms": "the pulse's rise time"})
     commonness, time_locked = 5, True
     #: both act for tens of ms after an axis reverses; at one feed a small stick-slip and
     #: a pulse are a few hundredths of a micrometre apart, and the simpler-finding rule
@@ -174,6 +178,7 @@ class StickSlip(Effect):
     crawling (against the direction of motion) and the saw-tooth about it."""
 
     name, title = "stick_slip", "saw-tooth while an axis crawls near a reversal"
+    trade_name = "stick-slip"
     commonness, time_locked = 12, True
     limits = MappingProxyType({"amplitude_*": 8.0, "mean_lag_*": 8.0})
     grid_um = (0.5, 0.8, 1.3, 2.0, 3.2, 5.0, 8.0, 12.0)

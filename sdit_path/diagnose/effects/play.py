@@ -28,6 +28,7 @@ def _start_rest_s(ctx: Context, j: int) -> float:
 
 class Backlash(Effect):
     name, title = "backlash", "lost motion: a step at each reversal of an axis (play operator)"
+    headline = 1
     commonness = 4
     reverse, feed_power = -1, 0.0
     limits = MappingProxyType({"play_*": 80.0, "slack_at_start_*": 80.0})

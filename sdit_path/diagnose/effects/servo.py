@@ -12,6 +12,9 @@ from .base import Effect, grid_search, memo, projection_gain
 
 class ServoLag(Effect):
     name, title = "servo_lag", "equal servo lag of all axes: radius shrink ~ v^2"
+    trade_name = "servo lag (equal on all axes)"
+    parameter_notes = MappingProxyType({"tau_ms": "the lag of every axis",
+                                        "kv_per_s": "the position loop gain (1 / lag)"})
     commonness, time_locked = 2, True
     #: Equal servo lag shrinks the path by (v tau)^2 / (2 R); a control's smoothing set
     #: as a path tolerance shortcuts the same curves by an amount that does not grow with
@@ -90,6 +93,10 @@ SECOND_ORDER = "second_order_lag_"
 
 class ServoMismatch(Effect):
     name, title = "servo_mismatch", "different servo lags per axis: ~v, flips with direction"
+    trade_name, headline = "servo mismatch", 0
+    parameter_notes = MappingProxyType({
+        "common_lag_ms": "the servo lag all axes share; it moves the whole reading in time as "
+                         "the recording's start does, so the two are read together"})
     commonness, time_locked = 6, True
     reverse, feed_power = -1, 1.0
     limits = MappingProxyType({"lag_*": 8.0, "common_lag_ms": 200.0})
