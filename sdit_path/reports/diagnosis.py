@@ -131,27 +131,45 @@ def pictures(d: Diagnosis, ctx: Context) -> dict[str, bytes]:
     fig.suptitle(f"{d.program}: gap RMS {d.gap['rms_um']:.3f} um -> unexplained "
                  f"{d.unexplained['rms_um']:.3f} um (grey bands: dwells)")
     out["residual_time"] = _png(fig, plt)
-    fig = plt.figure(figsize=(13, 5.5))
-    p = ctx.ball_mm[s["idx"]] - ctx.pivot_mm
+    # seen from above the pivot (distance from the centre: the angle from the pole), the
+    # whole path in grey under the samples the diagnosis read, coloured by their value
+    fig, axes = plt.subplots(1, 2, figsize=(13, 6.2))
+    whole = ctx.phase != "dwell"
+    wx, wy = _above(ctx.ball_mm[whole][::20] - ctx.pivot_mm)
+    px, py = _above(ctx.ball_mm[s["idx"]] - ctx.pivot_mm)
     lim = float(np.percentile(np.abs(s["residual"]), 99)) or 1.0
-    for k, (vals, title) in enumerate(((s["gap"], "gap"), (s["residual"], "unexplained"))):
-        ax = fig.add_subplot(1, 2, k + 1, projection="3d")
-        sub = slice(None, None, max(1, len(p) // 20000))
+    ring = np.linspace(0, 2 * np.pi, 361)
+    for ax, (vals, title) in zip(axes, ((s["gap"], "gap"), (s["residual"], "unexplained"))):
         vl = float(np.percentile(np.abs(vals), 99)) or lim
-        radius = float(np.median(ctx.length_mm))
-        az, el = np.meshgrid(np.linspace(0, 2 * np.pi, 37), np.linspace(0, np.pi / 2, 10))
-        ax.plot_wireframe(radius * np.cos(el) * np.cos(az), radius * np.cos(el) * np.sin(az),
-                          radius * np.sin(el), color="0.85", lw=0.4)
-        sc = ax.scatter(p[sub, 0], p[sub, 1], p[sub, 2], c=vals[sub], s=1.5, cmap="coolwarm",
-                        vmin=-vl, vmax=vl)
-        ax.set_title(f"{title} over the hemisphere (um)")
-        ax.set_xlabel("x mm (from the pivot)")
-        ax.set_ylabel("y mm")
-        ax.set_zlabel("z mm")
-        ax.set_box_aspect((1, 1, 0.5))
-        fig.colorbar(sc, ax=ax, shrink=0.6, pad=0.16)
+        for c in (30.0, 60.0, 90.0):
+            ax.plot(c * np.cos(ring), c * np.sin(ring), color="0.88", lw=0.6, zorder=0)
+        ax.plot(wx, wy, ".", ms=0.6, color="0.8", zorder=1)
+        sc = ax.scatter(px, py, c=vals, s=4, cmap="coolwarm", vmin=-vl, vmax=vl, zorder=2,
+                        rasterized=True)
+        ax.set_aspect("equal")
+        ax.set_xlim(-100, 100)
+        ax.set_ylim(-100, 100)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.annotate("+X", (93, 0), fontsize=8, color="0.4", va="center")
+        ax.annotate("+Y", (0, 93), fontsize=8, color="0.4", ha="center")
+        ax.set_title(f"{title} (um) seen from above the pivot", fontsize=10)
+        fig.colorbar(sc, ax=ax, shrink=0.8)
+    fig.suptitle(f"{d.program}: where the reading differs (coloured: the samples the "
+                 f"diagnosis read; grey: the rest of the path; rings every 30 deg from the "
+                 f"pole)", fontsize=10)
+    fig.tight_layout()
     out["residual_hemisphere"] = _png(fig, plt)
     return out
+
+
+def _above(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Azimuthal equidistant view from above: the angle from the pole (deg) along the
+    azimuth."""
+    r = np.linalg.norm(p, axis=1)
+    colat = 90.0 - np.degrees(np.arcsin(np.clip(p[:, 2] / np.maximum(r, 1e-9), -1.0, 1.0)))
+    az = np.arctan2(p[:, 1], p[:, 0])
+    return colat * np.cos(az), colat * np.sin(az)
 
 
 def _png(fig, plt) -> bytes:

@@ -405,3 +405,21 @@ def test_a_sectors_crest_moves_where_asked_and_every_program_stays_on_the_sphere
         chord = moved.post.chord_tolerance_um * 1e-3
         assert np.abs(np.linalg.norm(p - centre, axis=1) - radius).max() <= chord
         assert chord_deviation(p[:-1], p[1:], centre, radius).max() <= chord
+
+
+def test_information_is_judged_against_the_segments_own_layer():
+    """A layer low in information throughout (the cap) is the sphere's geometry, not a
+    bad segment; a segment far below its own layer's neighbours is."""
+    from sdit_path.config import load_config
+    from sdit_path.replan.evaluate import judge
+
+    cfg = load_config()
+    values = {f"A{k}-1": {"information_per_time": 1.5, "duration_s": 5.0} for k in range(1, 7)}
+    values.update({f"E{k}-1": {"information_per_time": 0.05, "duration_s": 5.0}
+                   for k in range(1, 7)})
+    values["A-1>E-1"] = {"information_per_time": 0.0, "duration_s": 5.0}  # a transit
+    assert judge(cfg, values, Limits()) == {}
+    values["E3-1"] = {"information_per_time": 0.004, "duration_s": 5.0}
+    bad = judge(cfg, values, Limits())
+    assert list(bad) == ["E3-1"] and bad["E3-1"][0].kind == "information"
+    assert "of its layer's median" in bad["E3-1"][0].text

@@ -58,3 +58,27 @@ def test_preview_says_which_timing_it_shows(tmp_path):
     assert modelled.timing == "LinuxCNC 2.9 planner model"
     assert "without a jerk limit" in modelled.note  # said under its axis pictures
     assert preview(plan(load_config(DATA / "golden_small.toml"))).timing == "our jerk-limited plan"
+
+
+@pytest.mark.slow
+def test_preview_of_a_written_plan_draws_its_trajectories_without_planning(golden_plans,
+                                                                         tmp_path):
+    from sdit_path.plan.files import load_plan
+    from sdit_path.plan.preview import preview_of_plan
+
+    plan = load_plan(golden_plans["fast"])
+    pv = preview_of_plan(plan)
+    assert [lp.program for lp in pv.layers] == ["GOLD_A", "GOLD_B"]
+    for lp in pv.layers:  # the trajectories as written, not planned again
+        assert lp.samples is plan.trajectory(lp.program)
+    out = tmp_path / "prev"
+    r = subprocess.run([sys.executable, "-m", "sdit_path", "preview", "--plan",
+                        str(golden_plans["fast"]), "--out", str(out), "-q"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert len(list(out.glob("*.png"))) == 6
+    # the plan's feed is fixed: --feed with --plan is refused in one line
+    r = subprocess.run([sys.executable, "-m", "sdit_path", "preview", "--plan",
+                        str(golden_plans["fast"]), "--out", str(tmp_path / "x"), "--feed", "900"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "not with --plan" in r.stderr and "Traceback" not in r.stderr
