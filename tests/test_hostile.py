@@ -27,7 +27,7 @@ from sdit_path.config import sample_path
 from sdit_path.errors import ConfigError, SditError
 from sdit_path.output import MARKER, write_file, write_tree
 from sdit_path.plan.configure import parse_config
-from sdit_path.plan.files import load_plan
+from sdit_path.plan.files import load_plan, sealed
 from sdit_path.reading.recording import read_trace
 
 from conftest import DATA, edit, have_linuxcnc
@@ -82,6 +82,7 @@ BASE5 = sample_path("bc_table_5axis.toml").read_text()
     (edit(BASE3, "name", '"' + "x" * 100_000 + '"'), "machine.name", "at most 1000 characters"),
     (edit(BASE3, "tool_length_mm", "1e9"), "machine.tool_length_mm", "<= 2000 mm"),
     (edit(BASE3, "spline_tolerance_um", "1e-300"), "post.spline_tolerance_um", ">= 0.001 um"),
+    (edit(BASE3, "dwell_s", "1e-300"), "test.dwell_s", ">= 0.1 s"),
 ])
 def test_implausible_numbers_are_refused_with_the_bound(text, key, expected):
     with pytest.raises(ConfigError) as err:
@@ -90,6 +91,28 @@ def test_implausible_numbers_are_refused_with_the_bound(text, key, expected):
     assert key in msg and expected in msg, msg
     assert re.match(r"x\.toml:\d+: ", msg), msg  # file and line
     assert "\n" not in msg and len(msg) < 400
+
+
+def test_a_config_with_a_byte_order_mark_is_read(tmp_path):
+    """Notepad writes a UTF-8 byte-order mark: the config reads as without it."""
+    from sdit_path.plan.configure import load_config
+
+    p = tmp_path / "bom.toml"
+    p.write_bytes(b"\xef\xbb\xbf" + BASE3.encode("utf-8"))
+    assert load_config(str(p)).machine == parse_config(BASE3, "x.toml").machine
+
+
+def test_a_reading_no_ballbar_gives_is_refused_by_its_line(tmp_path):
+    text = _trace_text().splitlines()
+    k = next(i for i, ln in enumerate(text) if ln and ln[0].isdigit()) + 7
+    t, _ = text[k].split(",")[:2]
+    text[k] = f"{t},1e308"
+    p = tmp_path / "big.csv"
+    p.write_text("\n".join(text) + "\n")
+    with pytest.raises(SditError) as err:
+        read_trace(p)
+    assert f"big.csv:{k + 1}:" in str(err.value) and "a ballbar reads within" in str(err.value)
+    assert err.value.exit_code == 2
 
 
 def test_a_spindle_nose_a_kilometre_long_is_refused():
@@ -254,7 +277,7 @@ def _refingerprint(d: Path) -> None:
     for rel in m["files"]:
         if (d / rel).is_file():
             m["files"][rel] = hashlib.sha256((d / rel).read_bytes()).hexdigest()
-    (d / "plan.json").write_text(json.dumps(m))
+    (d / "plan.json").write_text(json.dumps(sealed(m)))
 
 
 def _traj_edit(fn, refingerprint=True):
@@ -267,10 +290,13 @@ def _traj_edit(fn, refingerprint=True):
     return apply
 
 
-def _manifest_edit(fn):
+def _manifest_edit(fn, reseal=True):
+    """An edit of plan.json, sealed again (a deliberate, consistent edit that the value
+    checks behind the seal must catch) or not (the seal must)."""
     def apply(d: Path):
         m = json.loads((d / "plan.json").read_text())
-        (d / "plan.json").write_text(json.dumps(fn(m)))
+        m = fn(m)
+        (d / "plan.json").write_text(json.dumps(sealed(m) if reseal else m))
     return apply
 
 
@@ -295,6 +321,21 @@ PLAN_EDITS = {
         {**p, "trajectory": "../../etc/passwd"} for p in m["programs"]]}), "outside the plan"),
     "trajectory absolute": (_manifest_edit(lambda m: {**m, "programs": [
         {**p, "trajectory": "/etc/passwd"} for p in m["programs"]]}), "outside the plan"),
+    "plan.json edited": (_manifest_edit(lambda m: {**m, "machine": "another"}, reseal=False),
+                         "changed since it was planned"),
+    "plan.json unsealed": (_manifest_edit(lambda m: {k: v for k, v in m.items()
+                                                     if k != "sealed_sha256"}, reseal=False),
+                           "carries no seal"),
+    "tested_travel zero width": (_manifest_edit(lambda m: {**m, "tested_travel": {
+        **m["tested_travel"], "X": [5, 5]}}), "min < max"),
+    "tested_travel unknown axis": (_manifest_edit(lambda m: {**m, "tested_travel": {
+        **m["tested_travel"], "Q": [0, 5]}}), "not a linear axis"),
+    "tested_travel NaN": (_manifest_edit(lambda m: {**m, "tested_travel": {
+        **m["tested_travel"], "X": [float("nan"), 5]}}), "tested_travel"),
+    "sphere radius NaN": (_manifest_edit(lambda m: {**m, "sphere": {
+        **m["sphere"], "radius_mm": float("nan")}}), "finite"),
+    "sphere moved": (_manifest_edit(lambda m: {**m, "sphere": {
+        **m["sphere"], "radius_mm": m["sphere"]["radius_mm"] + 1}}), "differs from the config"),
     "config edited": (lambda d: (d / "config.toml").write_text(
         (d / "config.toml").read_text().replace("1000.0", "1200.0")), "changed since it was planned"),
     "trajectories swapped": (lambda d: (

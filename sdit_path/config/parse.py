@@ -169,7 +169,9 @@ def _test(r: Reader, root: dict, machine: MachineConfig) -> TestConfig:
                      f"expected elevations < 90 deg (the pole is the node TOP), got {elev[-1]:g}")
     nodes = r.integer(t, "test.nodes_per_track", 6, ge=1, le=72)
     subs = r.integer(t, "test.subsegments_per_sector", 3, ge=1, le=20)
-    dwell = r.number(t, "test.dwell_s", 2.0, gt=0, le=3600, unit="s")
+    # a dwell shorter than 0.1 s gives no still reading to anchor the timing (and no
+    # control programs less than a millisecond)
+    dwell = r.number(t, "test.dwell_s", 2.0, ge=0.1, le=3600, unit="s")
     feed = _feed(r, t, "test.feed_mm_per_min", machine)
     passes = r.strings(t, "test.passes", PASSES)
     for p in passes:
@@ -471,7 +473,8 @@ def load_config(path: str | Path | None = None) -> Config:
     except OSError as exc:
         raise ConfigError(str(p), f"cannot read: {exc.strerror}") from None
     try:
-        text = raw.decode("utf-8")
+        # a byte-order mark (what Notepad writes) is accepted, as in a recording
+        text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         line = raw[: exc.start].count(b"\n") + 1
         raise ConfigError(f"{p}:{line}", "not UTF-8 text; expected a TOML configuration") from None

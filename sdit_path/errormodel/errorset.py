@@ -45,7 +45,7 @@ def load_error_set(path: str | Path) -> ErrorSet:
             raise ConfigError(str(path), "no such error-set file (bundled: paper_table2, "
                                          "five_axis_location)")
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
+        data = tomllib.loads(p.read_text(encoding="utf-8-sig"))  # a byte-order mark is fine
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(str(p), f"cannot parse TOML: {exc}") from None
     for key in data:

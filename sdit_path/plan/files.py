@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path, PurePosixPath
 
@@ -279,6 +280,71 @@ def _check_program(path: Path, entry: dict, s: Samples) -> None:
                                          f"is cut or damaged")
 
 
+#: plan.json's own fingerprint: the sha256 of the rest of it in canonical JSON
+SEAL = "sealed_sha256"
+
+
+def seal_digest(manifest: dict) -> str:
+    """The sha256 of ``manifest`` without its seal, as canonical JSON (sorted keys, no
+    spaces): any edit of plan.json changes it, its formatting does not."""
+    rest = {k: v for k, v in manifest.items() if k != SEAL}
+    text = json.dumps(rest, sort_keys=True, separators=(",", ":"), ensure_ascii=False,
+                      allow_nan=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def sealed(manifest: dict) -> dict:
+    """``manifest`` with its seal, last."""
+    rest = {k: v for k, v in manifest.items() if k != SEAL}
+    return {**rest, SEAL: seal_digest(rest)}
+
+
+def _check_seal(m: dict, where: str) -> None:
+    said = m.get(SEAL)
+    if not isinstance(said, str):
+        raise ConfigError(where, "carries no seal (its own sha256): written by an older "
+                                 "sdit-path or edited; plan again")
+    if seal_digest(m) != said:
+        raise ConfigError(where, "changed since it was planned (its own sha256 differs from "
+                                 "its seal); plan again instead")
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _against_config(m: dict, cfg: Config, where: str) -> None:
+    """plan.json's values that later stages read, checked against the config they were
+    planned from (itself fingerprinted): a sealed but inconsistent manifest is refused."""
+    linear = {a.name: a for a in cfg.machine.axes if not a.is_rotary}
+    travel = m["tested_travel"]
+    for name, (lo, hi) in travel.items():
+        axis = linear.get(name)
+        if axis is None:
+            raise ConfigError(where, f"tested_travel: {str(name)[:20]!r} is not a linear axis of "
+                                     f"the machine ({', '.join(linear)})")
+        if not (_finite(lo) and _finite(hi) and lo < hi):
+            raise ConfigError(where, f"tested_travel.{name}: expected [min, max] with min < max, "
+                                     f"got [{lo}, {hi}]")
+        a_lo, a_hi = axis.travel
+        if lo < a_lo - 1e-6 or hi > a_hi + 1e-6:
+            raise ConfigError(where, f"tested_travel.{name}: [{lo:g}, {hi:g}] leaves the axis' "
+                                     f"travel [{a_lo:g}, {a_hi:g}]")
+    missing = set(linear) - set(travel)
+    if missing:
+        raise ConfigError(where, f"tested_travel: lacks {', '.join(sorted(missing))}")
+    sphere = m.get("sphere")
+    if sphere is not None:
+        centre, radius = sphere.get("centre_mm"), sphere.get("radius_mm")
+        if not (isinstance(centre, list) and len(centre) == 3 and all(map(_finite, centre))
+                and _finite(radius)):
+            raise ConfigError(where, "sphere: expected centre_mm [x, y, z] and radius_mm, "
+                                     "finite numbers")
+        if (abs(radius - cfg.ballbar.bar_length_mm) > 1e-6 or any(
+                abs(c - p) > 1e-6 for c, p in zip(centre, cfg.ballbar.pivot_mm))):
+            raise ConfigError(where, "sphere: differs from the config's pivot and bar length")
+
+
 def _manifest_shape(m, where: str) -> dict:
     if not isinstance(m, dict) or m.get("format") != FORMAT:
         raise ConfigError(where, f"not a plan manifest (expected a JSON object with "
@@ -323,6 +389,7 @@ def load_plan(directory: str | Path) -> PlanFiles:
     except json.JSONDecodeError as exc:
         raise ConfigError(where, f"line {exc.lineno}: not valid JSON") from None
     _manifest_shape(manifest, where)
+    _check_seal(manifest, where)
     cfg_path = d / "config.toml"
     try:
         raw = cfg_path.read_bytes()
@@ -341,4 +408,6 @@ def load_plan(directory: str | Path) -> PlanFiles:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
         raise ConfigError(str(cfg_path), "not UTF-8 text") from None
-    return PlanFiles(d, parse_config(text, str(cfg_path)), manifest)
+    cfg = parse_config(text, str(cfg_path))
+    _against_config(manifest, cfg, where)
+    return PlanFiles(d, cfg, manifest)

@@ -9,6 +9,7 @@ from pathlib import PurePath
 
 from .. import __version__
 from ..nc.words import count_blocks
+from .files import sealed
 from .pipeline import PlanResult
 
 FORMAT = "sdit-path/plan"
@@ -216,7 +217,7 @@ def _tested_travel(result: PlanResult) -> dict[str, list[float]]:
 
 
 def manifest_text(result: PlanResult, files: dict[str, str | bytes] | None = None) -> str:
-    return json.dumps(manifest(result, files), indent=2, ensure_ascii=False) + "\n"
+    return json.dumps(sealed(manifest(result, files)), indent=2, ensure_ascii=False) + "\n"
 
 
 def plan_directory_files(result: PlanResult, on_step=None) -> dict[str, str | bytes]:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SditError
+from ..errors import RecordingError, SditError
 from .trace import Trace
 
 
@@ -26,6 +26,10 @@ class TraceError(SditError):
 
     exit_code = 2
 
+
+#: No ballbar reads further than this from its length (um): a reading beyond is not a
+#: reading (a sensor's range is about +-1 mm; 10 mm leaves room for any instrument)
+MAX_READING_UM = 10_000.0
 
 #: A recording with fewer readings than this holds no usable information.
 MIN_SAMPLES = 100
@@ -118,8 +122,10 @@ def _plausible(p: Path, trace: Trace, k: int) -> Trace:
     t, dl = trace.t_s, trace.delta_l_um
     finite = int(np.isfinite(dl).sum())
     if finite < MIN_SAMPLES:
-        raise TraceError(f"{p}: {finite} reading(s) that are numbers (of {len(t)} rows); expected "
-                         f"a recording of at least {MIN_SAMPLES}")
+        # a readable file that holds too little to be a recording of any program: it
+        # does not fit (exit 6), as a recording shorter than its program does not
+        raise RecordingError(f"{p}: {finite} reading(s) that are numbers (of {len(t)} rows); "
+                             f"expected a recording of at least {MIN_SAMPLES}")
     if t[0] > 1e6:
         raise TraceError(f"{p}:{k + 2}: t_s starts at {t[0]:.6g} s, which looks like a clock "
                          f"or epoch timestamp; expected seconds from the start of the recording "
@@ -184,6 +190,10 @@ def _read_careful(p: Path, lines: list[str], k: int, cols: list[str], header: di
             if math.isinf(lv):
                 raise TraceError(f"{p}:{j}: {unit} {_cell(cell)} is not finite (a dropout is "
                                  f"empty or nan)")
+            if abs(lv) > MAX_READING_UM:
+                raise TraceError(f"{p}:{j}: {unit} {_cell(cell)} is {abs(lv) / 1e3:.3g} mm off "
+                                 f"the bar's length; a ballbar reads within "
+                                 f"+-{MAX_READING_UM / 1e3:g} mm (a dropout is empty or nan)")
         t[n], dl[n] = tv, lv
         seg[n] = parts[iseg].strip() if iseg is not None else ""
         ph[n] = parts[iph].strip() if iph is not None else ""
@@ -219,8 +229,8 @@ def _read_fast(p: Path, text: str, lines: list[str], k: int, cols: list[str],
     dl = df[unit].to_numpy(dtype=float) * (1.0 if unit == "delta_l_um" else 1000.0)
     if len(t) != len(lines) - k - 1 or not np.isfinite(t).all() or (np.diff(t) <= 0).any():
         return None
-    if np.isinf(dl).any():
-        return None
+    if np.isinf(dl).any() or (np.abs(np.nan_to_num(dl)) > MAX_READING_UM).any():
+        return None  # the careful reader names the line
     n = len(t)
     empty = np.full(n, "", dtype=object)
     seg, ph = empty, empty

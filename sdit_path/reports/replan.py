@@ -9,6 +9,7 @@ import json
 import numpy as np
 
 from ..config import Config
+from ..plan.files import sealed
 from ..plan.manifest import plan_directory_files
 from ..plan.pipeline import PlanResult
 from ..replan import Replan
@@ -153,7 +154,7 @@ def replan_files(result: Replan, planned: PlanResult, source: str,
     report = result.to_json()
     manifest = json.loads(files["plan.json"])
     manifest["replan"] = {"from": source, **report}
-    files["plan.json"] = json.dumps(manifest, indent=2, ensure_ascii=False) + "\n"
+    files["plan.json"] = json.dumps(sealed(manifest), indent=2, ensure_ascii=False) + "\n"
     files["replan.json"] = json.dumps(report, indent=2) + "\n"
     files["replan.txt"] = report_text(result)
     for name, png in pictures(result).items():

@@ -250,7 +250,7 @@ def test_more_bad_input(plan_dir, tmp_path):
     empty = tmp_path / "empty.csv"
     empty.write_text("t_s,delta_l_um\n" + "".join(f"{k / 1000:.3f},\n" for k in range(130000)))
     r = _cli("diagnose", "--plan", str(plan_dir), "--program", PROGRAM, "--measured", str(empty))
-    assert r.returncode == 2 and "empty.csv: 0 reading(s) that are numbers (of 130000 rows)" \
+    assert r.returncode == 6 and "empty.csv: 0 reading(s) that are numbers (of 130000 rows)" \
         in r.stderr, r.stderr
     inf = tmp_path / "inf.csv"
     inf.write_text("t_s,delta_l_um\n0,1\n0.001,inf\n")

@@ -13,6 +13,10 @@ import pytest
 
 from conftest import run  # noqa: E402
 
+# one worker makes the session's ``recorded`` analysis for every test that reads it
+# (scripts/test.sh runs xdist with --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("recorded")
+
 
 @pytest.mark.slow
 def test_recognised_aligned_and_geometry_within_its_uncertainty(recorded):

@@ -95,6 +95,7 @@ def test_the_plan_report_opens_and_prints(golden_plans, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("recorded")  # on the worker that made the analysis
 def test_the_test_report_opens_prints_and_leads_with_the_results(recorded, tmp_path):
     assert recorded["run"].returncode == 0, recorded["run"].stderr
     html = recorded["out"] / "report.html"
