@@ -52,6 +52,27 @@ def still_windows(trace: Trace) -> np.ndarray | None:
     return None if still.mean() > 0.6 else still
 
 
+def _why_no_dwells(trace: Trace) -> str:
+    """Why the recording's still windows cannot tell its dwells, as it is: still indeed
+    (its 50 ms means spread no more than a few times its noise), or changing too slowly
+    for half a second to show a motion."""
+    t = np.asarray(trace.t_s, float)
+    y = np.asarray(trace.delta_l_um, float)
+    ok = np.isfinite(y)
+    if ok.sum() < 10:
+        return "the recording holds too few readings to show its dwells"
+    noise = noise_estimate(y[ok], t[ok])
+    _, means, _ = block_means(t, y)
+    spread = float(np.std(means)) if len(means) else 0.0
+    if spread <= 3.0 * noise + 0.05:
+        return (f"the recording stands still nearly throughout (its 50 ms means spread "
+                f"{spread:.2f} um against {noise:.2f} um of noise: its dwells say nothing); "
+                f"recognised by its alignment alone")
+    return (f"the recording's dwells do not show: it changes by less than its noise within "
+            f"half a second nearly throughout, though it spreads {spread:.2f} um over the "
+            f"recording; recognised by its alignment alone")
+
+
 def standstill_spread(trace: Trace) -> float:
     """The recording's spread (um RMS) where it stands still (its 0.5 s windows that
     :func:`still_windows` finds still): its noise and any steady vibration; its noise
@@ -275,7 +296,7 @@ def _match_planned(plan: PlanFiles, trace: Trace, label: str, named: str | None 
     scores = {p: dwell_score(plan, p, still) for p in by_duration} if still is not None else {}
     seen = ("dwells on the recording's still windows: " + ", ".join(
         f"{p} {v:.2f}" for p, v in sorted(scores.items(), key=lambda kv: -kv[1]))
-        if scores else "the recording stands still nearly throughout (its dwells say nothing)")
+        if scores else _why_no_dwells(trace))
     # a recording of its program scores well above DWELL_MATCH, another program of the
     # same plan about as much at most, another feed or plan far less: below DWELL_MATCH
     # no program of this plan was recorded (when the recording stands still at least

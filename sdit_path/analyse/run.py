@@ -21,7 +21,7 @@ from ..diagnose import Diagnosis, diagnose
 from ..diagnose import Options as DiagnosisOptions
 from ..diagnose.effects import EFFECTS, Samples, library
 from ..diagnose.effects.generic import dynamic_columns
-from ..diagnose.recording import AlignedRecording, poor_fit
+from ..diagnose.recording import CLOCK_LIMIT_PPM, AlignedRecording, poor_fit
 from ..errormodel.errorset import ErrorSet
 from ..errormodel.model import ModelOptions
 from ..errors import RecordingError
@@ -234,6 +234,13 @@ def _result(done: list[Analysed], geometry: Identification,
             f"the library lacks, or a recording of something else (see each recording's "
             f"unexplained part)")
     for a in done:
+        al = a.diagnosis.alignment
+        if a.aligned.runs is None and abs(al.clock_ppm) > CLOCK_LIMIT_PPM * (1.0 + 1e-6):
+            # a clock beyond the contract is never a result: the timing is not established
+            warnings.append(f"{a.label} ({a.program}): its alignment needs the clock at "
+                            f"{al.clock_ppm:+.1f} ppm, beyond the +-{CLOCK_LIMIT_PPM:.0f} ppm "
+                            f"instruments keep: its timing is not established, and what is read "
+                            f"from it is what the model makes of it")
         if a.diagnosis.unexplained.get("significant"):
             warnings.append(f"{a.label} ({a.program}): {a.diagnosis.unexplained['rms_um']:.2f} um "
                             f"RMS left that no effect of the library explains")
