@@ -40,6 +40,4 @@ echo "== running the tests"
 # oversubscribe the cores when two processes run
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1} OPENBLAS_NUM_THREADS=${OPENBLAS_NUM_THREADS:-1} \
     MKL_NUM_THREADS=${MKL_NUM_THREADS:-1}
-# --dist loadgroup: tests that share an expensive session fixture (the analysed
-# recordings) run on one worker, which makes it once
-exec .venv/bin/python -m pytest -n 2 --dist loadgroup "$@"
+exec .venv/bin/python -m pytest -n 2 "$@"

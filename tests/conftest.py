@@ -145,7 +145,10 @@ def geometry_file(path, seed):
 
 
 @pytest.fixture(scope="session")
-def recorded(tmp_path_factory, golden_plans):
+def perturbed(tmp_path_factory, golden_plans):
+    """Two recordings of the fast golden plan by ``perturb``: hidden geometry, a 2 ms
+    servo mismatch of Y, unknown starts and clocks (the tests that only need recordings
+    of the plan take these; ``recorded`` analyses them)."""
     root = tmp_path_factory.mktemp("analyse")
     plan = golden_plans["fast"]
     truth = geometry_file(root / "hidden.toml", seed=7)
@@ -158,7 +161,13 @@ def recorded(tmp_path_factory, golden_plans):
                 "--out", str(rec), "--truth", str(root / f"truth{k}.json"), "-q")
         assert r.returncode == 0, r.stderr
         files.append(rec)
-    out = root / "out"
-    r = run("analyse", "--plan", str(plan), "--measured", str(files[1]), "--measured",
-            str(files[0]), "--out", str(out), "--no-pictures")
-    return {"root": root, "plan": plan, "files": files, "truth": truth, "out": out, "run": r}
+    return {"root": root, "plan": plan, "files": files, "truth": truth}
+
+
+@pytest.fixture(scope="session")
+def recorded(perturbed):
+    """``perturbed`` analysed by the command line (its report.html included)."""
+    out = perturbed["root"] / "out"
+    r = run("analyse", "--plan", str(perturbed["plan"]), "--measured", str(perturbed["files"][1]),
+            "--measured", str(perturbed["files"][0]), "--out", str(out), "--no-pictures")
+    return {**perturbed, "out": out, "run": r}

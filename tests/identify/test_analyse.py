@@ -11,15 +11,14 @@ import pytest
 
 
 
-from conftest import run  # noqa: E402
+from pathlib import Path
 
-# one worker makes the session's ``recorded`` analysis for every test that reads it
-# (scripts/test.sh runs xdist with --dist loadgroup)
-pytestmark = pytest.mark.xdist_group("recorded")
+from browser import CHROMIUM, check_page, open_in_chromium, pdf_pages
+from conftest import run  # noqa: E402
 
 
 @pytest.mark.slow
-def test_recognised_aligned_and_geometry_within_its_uncertainty(recorded):
+def test_recognised_aligned_and_geometry_within_its_uncertainty(recorded, tmp_path):
     r = recorded["run"]
     assert r.returncode == 0, r.stderr
     rep = json.loads((recorded["out"] / "analysis.json").read_text())
@@ -50,13 +49,36 @@ def test_recognised_aligned_and_geometry_within_its_uncertainty(recorded):
     # the set-up once, with its recording, not again as a finding
     assert text.count("set-up: ball centring") == 2 and "Set-up (estimated" not in text
     assert "setup_offset" not in text
-    assert (recorded["out"] / "report.html").is_file()
+    _the_report_opens_prints_and_leads_with_the_results(recorded, tmp_path)
     aligned = sorted(p.name for p in (recorded["out"] / "aligned").iterdir())
     assert aligned == ["GOLD_A_rec0.csv", "GOLD_B_rec1.csv"]
 
 
+def _the_report_opens_prints_and_leads_with_the_results(recorded, tmp_path):
+    """analyse's report.html in Debian's headless Chromium (tests/browser.py): the plan
+    map, a polar plot per layer, a picture per finding; the first printed page carries
+    the results with their k=2 uncertainties; ``report`` from the analysis folder writes
+    the same bytes."""
+    html = recorded["out"] / "report.html"
+    assert html.is_file()
+    if not Path(CHROMIUM).exists():
+        pytest.skip("Debian's chromium is not installed (scripts/test.sh installs it)")
+    seen = open_in_chromium(html, tmp_path)
+    check_page(seen, min_images=1 + 2 + 1)
+    pages = pdf_pages(tmp_path / "report.pdf")
+    assert len(pages) >= 3
+    for words in ("squareness X-Y", "scale mismatch X-Y", "servo mismatch", "backlash",
+                  "k=2"):
+        assert words in pages[0], (words, pages[0][:2000])
+    again = tmp_path / "again.html"
+    r = run("report", "--plan", str(recorded["plan"]), "--analysis",
+            str(recorded["out"] / "analysis.json"), "--out", str(again), "-q")
+    assert r.returncode == 0, r.stderr
+    assert again.read_bytes() == html.read_bytes()
+
+
 @pytest.mark.slow
-def test_a_recording_of_another_feed_is_refused_and_nothing_is_written(recorded, golden_plans,
+def test_a_recording_of_another_feed_is_refused_and_nothing_is_written(perturbed, golden_plans,
                                                                        tmp_path):
     rec = tmp_path / "slow.csv"
     r = run("perturb", "--plan", str(golden_plans["slow"]), "--program", "GOLD_A", "--lead-s", "4",
@@ -64,7 +86,7 @@ def test_a_recording_of_another_feed_is_refused_and_nothing_is_written(recorded,
     assert r.returncode == 0, r.stderr
     out = tmp_path / "out"
     for given in (str(rec), f"GOLD_A={rec}"):
-        r = run("analyse", "--plan", str(recorded["plan"]), "--measured", given, "--out", str(out))
+        r = run("analyse", "--plan", str(perturbed["plan"]), "--measured", given, "--out", str(out))
         assert r.returncode != 0
         lines = r.stderr.strip().splitlines()
         assert len(lines[-1]) < 700 and "Traceback" not in r.stderr, r.stderr
@@ -73,7 +95,8 @@ def test_a_recording_of_another_feed_is_refused_and_nothing_is_written(recorded,
 
 
 @pytest.mark.slow
-def test_bad_requests_get_one_line_and_touch_nothing(recorded, tmp_path):
+def test_bad_requests_get_one_line_and_touch_nothing(perturbed, tmp_path):
+    recorded = perturbed
     plan, rec = str(recorded["plan"]), str(recorded["files"][0])
     before = sorted(p.name for p in recorded["plan"].iterdir())
     cases = ((["--measured", f"FOO={rec}", "--out", str(tmp_path / "o")], "'FOO' is not a program"),
