@@ -14,6 +14,8 @@ import base64
 import html
 import re
 
+import numpy as np
+
 from ..analyse.sphere import LayerDeviation
 from ..plan.files import PlanFiles
 from . import report_pictures as pics
@@ -273,14 +275,41 @@ def _plan_section(plan: PlanFiles) -> str:
     starts = {p["name"]: p.get("start_node", "") for p in progs.values()}
     picture = pics.plan_map(layers, list(m.get("nodes", ())), plan.config.ballbar.pivot_mm,
                             starts)
+    setup = _machine_at_start(plan, layers)
     return ('<h2 class="newpage">The plan</h2>'
             + _img(picture, "the test seen from above the pivot",
                    "Each layer runs its segments forward (the arrow) from its start node, "
                    "then back in reverse, with a dwell at every static node. Grey dashed: "
-                   "the transits between layers. Node names: track and number.", "92%")
+                   "the transits between layers. Node names: track and number.", "84%")
             + _table(["layer", "program", "elevation (deg)", "segments", "cycle (s)",
                       "min clearance (mm)", "max radial deviation as written (um)",
-                      "omitted"], rows, {3, 4, 5, 6}))
+                      "omitted"], rows, {3, 4, 5, 6})
+            + setup)
+
+
+def _machine_at_start(plan: PlanFiles, layers: list) -> str:
+    """The machine's parts, the balls and the bar where the first layer starts."""
+    if not layers:
+        return ""
+    from ..interference.scene import Scene
+    from ..machine.kinematics import Kinematics
+    from ..timing.trajectory import axis_values_rad
+
+    name, traj = layers[0]
+    kin = Kinematics(plan.config.machine)
+    q = axis_values_rad(traj, kin)[:1]
+    scene = Scene(plan.config, kin)
+    poses = scene.part_poses(q)
+    rot_w, trans_w = kin.table_transform(q)
+    pivot_bed = rot_w[0] @ np.asarray(plan.config.ballbar.pivot_mm, float) + trans_w[0]
+    meshes = [p.name for p in scene.parts if p.shape == "mesh"]
+    png = pics.machine_view(scene.parts, poses, pivot_bed, plan.config.ballbar.bar_length_mm,
+                            f"The set-up where layer {name} starts (bed frame)")
+    note = (f" Mesh parts ({', '.join(meshes)}) are not drawn." if meshes else "")
+    return _img(png, "the machine at the start", "The machine's parts as the interference check "
+                "knows them (table side blue, tool side grey), the balls and the bar (orange) "
+                "where the first layer starts; dashed: the sphere the tool ball runs on." + note,
+                "80%")
 
 
 # -- the measurement ------------------------------------------------------------------------

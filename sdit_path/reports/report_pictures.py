@@ -181,3 +181,71 @@ def timing_chart(program: str, runs: list[dict], key: str) -> bytes:
                  f"+-2 %)", fontsize=8)
     fig.subplots_adjust(left=0.1, right=0.99, top=0.86, bottom=0.34)
     return _png(fig)
+
+
+def _outline(part, rot: np.ndarray, pos: np.ndarray) -> np.ndarray | None:
+    """Surface points of a posed primitive ``(k, 3)`` (bed frame); None for a mesh."""
+    size = part.size_mm
+    if part.shape == "box" and len(size) == 3:
+        c = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
+                     float) * np.asarray(size) / 2.0
+    elif part.shape in ("cylinder", "capsule") and len(size) == 2:
+        r, h = size
+        half = h / 2.0 + (r if part.shape == "capsule" else 0.0)
+        a = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+        ring = np.column_stack([r * np.cos(a), r * np.sin(a), np.zeros_like(a)])
+        c = np.vstack([ring + [0, 0, -half], ring + [0, 0, half]])
+    elif part.shape == "sphere" and len(size) >= 1:
+        r = size[0]
+        a = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+        c = np.vstack([np.column_stack([r * np.cos(a), r * np.sin(a), 0 * a]),
+                       np.column_stack([r * np.cos(a), 0 * a, r * np.sin(a)]),
+                       np.column_stack([0 * a, r * np.cos(a), r * np.sin(a)])])
+    else:
+        return None
+    return c @ rot.T + pos
+
+
+def machine_view(parts, poses, pivot_bed: np.ndarray, radius_mm: float, title: str) -> bytes:
+    """The machine's parts, the balls and the bar at one pose, seen from the front (along
+    +Y) and from the side (along -X): each part as the outline of its projection (table
+    side blue, tool side grey, the bar orange), the sphere the ball runs on dashed."""
+    from matplotlib.patches import Polygon
+    from scipy.spatial import ConvexHull, QhullError
+
+    colours = {"work": ("#c9d7ea", "#4a6d9c"), "tool": ("#dddddd", "#555555"),
+               "bar": ("#f2b36b", "#b3671a")}
+    fig, axes = plt.subplots(1, 2, figsize=(7.0, 3.6))
+    t = np.linspace(0, np.pi, 91)
+    for ax, (i, j, name) in zip(axes, ((0, 2, "front (X, Z)"), (1, 2, "side (Y, Z)"))):
+        pts_all = []
+        for part, (rot, pos) in zip(parts, poses):
+            pts = _outline(part, rot[0], pos[0])
+            if pts is None:
+                continue
+            p2 = pts[:, [i, j]]
+            pts_all.append(p2)
+            face, edge = colours.get(part.side, colours["tool"])
+            if part.name in ("pivot_ball", "tool_ball"):
+                face, edge = "#222222", "#000000"
+            try:
+                hull = p2[ConvexHull(p2).vertices]
+            except (QhullError, ValueError):
+                continue
+            ax.add_patch(Polygon(hull, closed=True, facecolor=face, edgecolor=edge, lw=0.8,
+                                 zorder=3 if part.side == "bar" or "ball" in part.name else 2))
+        ax.plot(pivot_bed[i] + radius_mm * np.cos(t), pivot_bed[j] + radius_mm * np.sin(t),
+                ls=(0, (4, 3)), color="0.5", lw=0.8, zorder=1)
+        if pts_all:
+            allp = np.vstack(pts_all)
+            lo, hi = allp.min(axis=0), allp.max(axis=0)
+            pad = 0.05 * float(max(hi - lo))
+            ax.set_xlim(lo[0] - pad, hi[0] + pad)
+            ax.set_ylim(lo[1] - pad, hi[1] + pad)
+        ax.set_aspect("equal")
+        ax.set_title(name, fontsize=8)
+        ax.tick_params(labelsize=6)
+        ax.set_xlabel("mm", fontsize=6)
+    fig.suptitle(title, fontsize=8)
+    fig.tight_layout()
+    return _png(fig)
