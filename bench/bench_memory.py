@@ -2,9 +2,12 @@
 
 The tools run on a shop PC beside the machine (8 GB, other work open): the target is
 1 GB for the whole command, its worker processes included.  Each command runs as a
-subprocess; every 20 ms the resident memory of it and all its descendants is summed from
-/proc (``VmRSS``), and the largest sum is its peak.  Printed per command: wall time,
-peak of the whole tree, the largest single process, and the ratio to the target.
+subprocess; every 50 ms the proportional set size of it and all its descendants is
+summed from /proc (``Pss`` of ``smaps_rollup``: a page shared by forked workers counts
+once, split between them, where resident sizes would count it in every worker), and the
+largest sum is its peak.  Printed per command: wall time, the peak of the whole tree,
+the largest resident size of a single process, and the whole tree's peak against the
+target.
 
 Commands (``--only`` picks some):
 
@@ -34,11 +37,11 @@ TARGET_MB = 1024.0
 CLI = [sys.executable, "-m", "sdit_path"]
 
 
-def _rss_kb(pid: int) -> int:
+def _kb(pid: int, path: str, key: str) -> int:
     try:
-        with open(f"/proc/{pid}/status") as fh:
+        with open(f"/proc/{pid}/{path}") as fh:
             for line in fh:
-                if line.startswith("VmRSS:"):
+                if line.startswith(key):
                     return int(line.split()[1])
     except OSError:
         pass
@@ -75,10 +78,11 @@ def measured(args: list[str], cwd: Path) -> tuple[float, float, float, subproces
 
     def watch():
         while proc.poll() is None:
-            sizes = [_rss_kb(p) for p in _tree(proc.pid)]
-            peak["tree"] = max(peak["tree"], sum(sizes))
-            peak["one"] = max(peak["one"], max(sizes, default=0))
-            time.sleep(0.02)
+            tree = _tree(proc.pid)
+            peak["tree"] = max(peak["tree"], sum(_kb(p, "smaps_rollup", "Pss:") for p in tree))
+            peak["one"] = max(peak["one"], max((_kb(p, "status", "VmRSS:") for p in tree),
+                                               default=0))
+            time.sleep(0.05)
 
     th = threading.Thread(target=watch, daemon=True)
     th.start()
@@ -165,10 +169,10 @@ def main() -> None:
             sys.exit(f"bench_memory: diagnose failed: {r.stderr.strip()[-400:]}")
         rows.append(("diagnose, one hour at 1 kHz", wall, tree, one))
     print(f"work folder: {work}")
-    print(f"{'command':32} {'wall s':>8} {'peak MB, all processes':>23} {'largest one':>12} "
-          f"{'/ 1 GB':>7}")
+    print(f"{'command':32} {'wall s':>8} {'peak MB, all processes (PSS)':>29} "
+          f"{'largest RSS':>12} {'/ 1 GB':>7}")
     for name, wall, tree, one in rows:
-        print(f"{name:32} {wall:8.1f} {tree:23.0f} {one:12.0f} {tree / TARGET_MB:7.2f}")
+        print(f"{name:32} {wall:8.1f} {tree:29.0f} {one:12.0f} {tree / TARGET_MB:7.2f}")
     print(peak_memory_line())
 
 

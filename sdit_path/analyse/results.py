@@ -10,7 +10,6 @@ from dataclasses import dataclass
 from ..diagnose import Diagnosis
 from ..diagnose.recording import AlignedRecording
 from ..identify.results import Identification
-from ..reading.context import Context
 from ..reading.trace import Trace
 
 
@@ -28,8 +27,9 @@ def recording_header(header: dict, longest: int = 120) -> dict:
 class Analysed:
     """One recording: its ``label`` (the file), its ``program`` and how it was chosen
     (``matched``), its first alignment (``aligned``), its ``diagnosis``, the recording on
-    program time by the diagnosis' alignment (``trace``), the program's context and the
-    diagnosis' ``pictures`` (name -> PNG, when drawn)."""
+    program time by the diagnosis' alignment (``trace``) and the diagnosis' ``pictures``
+    (name -> PNG, when drawn).  (The program's context, a hundred MB at 1 kHz, is not
+    kept: the analysis lets it go once the recording is diagnosed.)"""
 
     label: str
     program: str
@@ -37,7 +37,6 @@ class Analysed:
     aligned: AlignedRecording
     diagnosis: Diagnosis
     trace: Trace
-    ctx: Context
     pictures: Mapping[str, bytes]
 
 

@@ -163,7 +163,7 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
         d, (cols, grp), pngs = result
         ctx = program_context(plan, rec.program, contexts)
         done[k] = Analysed(label, rec.program, how, rec, d,
-                           _on_program_time(label, rec, trace, d, ctx), ctx, pngs)
+                           _on_program_time(label, rec, trace, d, ctx), pngs)
         if cols is not None and len(cols) != len(plan.trajectory(rec.program).t_s):
             cols, grp = None, []  # not on the trajectory grid: identify without them
         extra[k] = (cols, grp)
@@ -175,6 +175,10 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
     each(diagnosed, labels, jobs, step, "diagnosing {label}",
          sizes=[float(len(rec.trace.t_s)) for _, _, rec, _ in first], arrived=arrived)
     analysed = [done[k] for k in range(len(first))]
+    # the programs' contexts (a hundred MB each at 1 kHz) are not needed any more: let
+    # them go before the geometry's normal equations are made
+    contexts.clear()
+    del generic
     step("identifying the geometry with the effects found")
     geometry = identify([(plan, a.program, a.trace) for a in analysed], options,
                         extra=[extra[k][0] for k in range(len(first))],
