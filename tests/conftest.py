@@ -19,6 +19,14 @@ VALIDATION = Path(__file__).resolve().parents[1] / "validation"
 sys.path.insert(0, str(VALIDATION))
 
 
+def pytest_collection_modifyitems(config, items):
+    """The modules holding a campaign (minutes each) first, each module kept whole (its
+    module-scoped fixtures are made once): two workers then share the long tests from
+    the start instead of one of them finishing a long one alone at the end."""
+    heavy = {item.module for item in items if item.get_closest_marker("campaign")}
+    items.sort(key=lambda item: item.module not in heavy)  # stable
+
+
 def pytest_addoption(parser):
     parser.addoption("--regen-golden", action="store_true",
                      help="rewrite tests/golden/ from the current code (review the diff!)")
