@@ -136,16 +136,9 @@ def run(*args, timeout=1200):
 
 def geometry_file(path, seed):
     """Random geometry of a few um and tens of urad (linear order 1 + squareness)."""
-    rng = np.random.default_rng(seed)
-    values = {}
-    for axis in "XYZ":
-        for comp in "XYZ":
-            values[f"E{comp}{axis}"] = rng.normal(0, 3.0)
-            values[f"E{comp}{axis}.P1"] = rng.normal(0, 3.0)
-        for comp in "ABC":
-            values[f"E{comp}{axis}"] = rng.normal(0, 20.0)
-    for sq in ("EC0Y", "EB0Z", "EA0Z"):
-        values[sq] = rng.normal(0, 30.0)
+    from analyse_blind import geometry  # validation/ is on the path (above)
+
+    values = geometry(np.random.default_rng(seed))
     body = "\n".join(f'"{k}" = {v:.4f}' for k, v in values.items())
     path.write_text(f'name = "hidden {seed}"\n\n[model]\nlinear_order = 1\nsquareness = true\n'
                     f"\n[values]\n{body}\n")

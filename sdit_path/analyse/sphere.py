@@ -17,16 +17,14 @@ Everything is read on program time: the recording as the analysis aligned it.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..geometry.hemisphere import TEST_SEGMENT
 from ..timing.trajectory import Samples
 
-#: a test segment's id: layer, sector, sub-segment (D3-2)
-TEST_SEGMENT = re.compile(r"^[A-Z]+\d+-\d+$")
 
 
 @dataclass(frozen=True, slots=True)

@@ -14,6 +14,7 @@ Azimuth 0 is +X of the program frame; angles are radians internally.
 from __future__ import annotations
 
 import math
+import re
 import string
 from dataclasses import dataclass
 
@@ -104,6 +105,11 @@ class Hemisphere:
     @property
     def segment_count(self) -> int:
         return sum(len(layer.segments) for layer in self.layers)
+
+
+#: a test segment's id (``D3-2``: layer, sector, sub-segment; group 1 the layer); the
+#: transits between nodes (``A-1>B-1``) and the nodes themselves do not match
+TEST_SEGMENT = re.compile(r"^([A-Z]+)\d+-\d+$")
 
 
 def track_names(count: int) -> tuple[str, ...]:

@@ -25,7 +25,6 @@ number and the limit it broke:
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,7 +32,7 @@ import numpy as np
 from ..config import Config
 from ..errormodel.model import ModelOptions, build_model
 from ..errors import ConfigError
-from ..geometry.hemisphere import partition
+from ..geometry.hemisphere import TEST_SEGMENT, partition
 from ..geometry.paths import PathBuilder
 from ..identify.identify import STRUCTURAL, experiment_gram
 from ..interference.scene import Scene
@@ -43,11 +42,6 @@ from ..plan.pipeline import check_layer
 from ..timing.trajectory import Samples, Timer, axis_values_rad, sample
 
 
-
-
-#: a test segment's id (D3-2) and its layer; transits between nodes (A-1>B-1) run in
-#: every plan and are judged only on what makes them unsafe
-_TEST = re.compile(r"^([A-Z]+)\d+-\d+$")
 
 
 @dataclass(frozen=True, slots=True)
@@ -350,7 +344,7 @@ def judge(cfg: Config, values: dict[str, dict], limits: Limits,
     median = servo_median(values) if median is None else median
     layer_info: dict[str, list[float]] = {}
     for sid, v in values.items():
-        m = _TEST.match(sid)
+        m = TEST_SEGMENT.match(sid)
         if m and v.get("information_per_time") is not None:
             layer_info.setdefault(m.group(1), []).append(v["information_per_time"])
     info_median = {k: float(np.median(x)) for k, x in layer_info.items()}
@@ -396,7 +390,7 @@ def judge(cfg: Config, values: dict[str, dict], limits: Limits,
             r.append(Reason("rotary_rate", float(n), 0.0, "warnings",
                             f"a rotary axis would turn faster than its limit ({n} warning(s))"))
         ip = v.get("information_per_time")
-        m = _TEST.match(sid)
+        m = TEST_SEGMENT.match(sid)
         lay = info_median.get(m.group(1)) if m else None
         if ip is not None and lay and ip < limits.information_of_layer * lay:
             lim = limits.information_of_layer * lay

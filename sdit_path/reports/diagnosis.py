@@ -10,6 +10,7 @@ import numpy as np
 from ..diagnose import Diagnosis
 from ..diagnose.align import timing_is_weak
 from ..reading.context import Context
+from .views import above_pivot
 
 
 def parameters_text(params: dict, std: dict) -> str:
@@ -135,8 +136,8 @@ def pictures(d: Diagnosis, ctx: Context) -> dict[str, bytes]:
     # whole path in grey under the samples the diagnosis read, coloured by their value
     fig, axes = plt.subplots(1, 2, figsize=(13, 6.2))
     whole = ctx.phase != "dwell"
-    wx, wy = _above(ctx.ball_mm[whole][::20] - ctx.pivot_mm)
-    px, py = _above(ctx.ball_mm[s["idx"]] - ctx.pivot_mm)
+    wx, wy = above_pivot(ctx.ball_mm[whole][::20], ctx.pivot_mm)
+    px, py = above_pivot(ctx.ball_mm[s["idx"]], ctx.pivot_mm)
     lim = float(np.percentile(np.abs(s["residual"]), 99)) or 1.0
     ring = np.linspace(0, 2 * np.pi, 361)
     for ax, (vals, title) in zip(axes, ((s["gap"], "gap"), (s["residual"], "unexplained"))):
@@ -161,15 +162,6 @@ def pictures(d: Diagnosis, ctx: Context) -> dict[str, bytes]:
     fig.tight_layout()
     out["residual_hemisphere"] = _png(fig, plt)
     return out
-
-
-def _above(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Azimuthal equidistant view from above: the angle from the pole (deg) along the
-    azimuth."""
-    r = np.linalg.norm(p, axis=1)
-    colat = 90.0 - np.degrees(np.arcsin(np.clip(p[:, 2] / np.maximum(r, 1e-9), -1.0, 1.0)))
-    az = np.arctan2(p[:, 1], p[:, 0])
-    return colat * np.cos(az), colat * np.sin(az)
 
 
 def _png(fig, plt) -> bytes:

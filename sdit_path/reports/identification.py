@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-import re
 import textwrap
+
+from ..geometry.hemisphere import TEST_SEGMENT
 
 
 def summary_text(report: dict, max_combinations: int = 20, setup: bool = True) -> str:
@@ -82,7 +83,7 @@ def summary_text(report: dict, max_combinations: int = 20, setup: bool = True) -
             lines.append(f"  {k}: O1 {v['O1']:.3g}, O4 {v['O4']:.3g}")
         # the test segments (A1-2, D3-2, ...), not the transits between nodes that every
         # layer must run (A-1>B-1, E-1>TOP), which see little of the geometry by design
-        segs = sorted(((k, v) for k, v in obs["segments"].items() if _TEST_SEGMENT.match(k)),
+        segs = sorted(((k, v) for k, v in obs["segments"].items() if TEST_SEGMENT.match(k)),
                       key=lambda kv: kv[1]["O4"])
         if segs:
             worst = ", ".join(f"{k} (O4 {v['O4']:.2g})" for k, v in segs[:5])
@@ -117,10 +118,6 @@ def figures_lines(figures) -> list[str]:
             out.append(f"  {f['name']:<20} not determined: it depends on "
                        f"{', '.join(f['needs']) or 'parameters'} beyond what the data see")
     return out
-
-
-#: a test segment's id: layer, sector, sub-segment (D3-2)
-_TEST_SEGMENT = re.compile(r"^[A-Z]+\d+-\d+$")
 
 
 def _options(o: dict) -> str:

@@ -8,14 +8,13 @@ import json
 
 import numpy as np
 
-from ..config import Config
 from ..plan.files import sealed
 from ..plan.manifest import plan_directory_files
 from ..plan.pipeline import PlanResult
 from ..replan import Replan
 from ..replan.candidates import sector_of
 from ..replan.evaluate import BIAS_NOISE_UM
-from ..timing.trajectory import Samples
+from .views import above_pivot
 
 
 
@@ -103,11 +102,11 @@ def pictures(r: Replan) -> dict[str, bytes]:
                           (a, dict(color="tab:blue", lw=1.2, label="re-planned"))):
             if ev.samples is None:
                 continue
-            x, y = _polar_view(r.config, ev.samples)
+            x, y = above_pivot(ev.samples.ball_mm, r.config.ballbar.pivot_mm)
             moving = ev.samples.phase != "dwell"
             ax.plot(np.where(moving, x, np.nan), np.where(moving, y, np.nan), **style)
         if b.samples is not None:
-            x, y = _polar_view(r.config, b.samples)
+            x, y = above_pivot(b.samples.ball_mm, r.config.ballbar.pivot_mm)
             for sid, rs in r.before.reasons.items():
                 if sector_of(sid)[0] != name:
                     continue
@@ -133,16 +132,6 @@ def pictures(r: Replan) -> dict[str, bytes]:
         plt.close(fig)
         out[f"{name}_replan.png"] = buf.getvalue()
     return out
-
-
-def _polar_view(cfg: Config, s: Samples) -> tuple[np.ndarray, np.ndarray]:
-    """Ball positions seen from above the pivot: the distance from the pole in degrees
-    of elevation, along the azimuth."""
-    p = s.ball_mm - np.array(cfg.ballbar.pivot_mm)
-    r = np.linalg.norm(p, axis=1)
-    colat = 90.0 - np.degrees(np.arcsin(np.clip(p[:, 2] / r, -1, 1)))
-    az = np.arctan2(p[:, 1], p[:, 0])
-    return colat * np.cos(az), colat * np.sin(az)
 
 
 def replan_files(result: Replan, planned: PlanResult, source: str,

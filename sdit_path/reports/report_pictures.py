@@ -16,8 +16,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..analyse.sphere import TEST_SEGMENT, LayerDeviation, pass_of  # noqa: E402
+from ..analyse.sphere import LayerDeviation, pass_of  # noqa: E402
+from ..geometry.hemisphere import TEST_SEGMENT  # noqa: E402
 from ..timing.trajectory import Samples  # noqa: E402
+from .views import above_pivot  # noqa: E402
 
 _PNG = {"Software": None}
 #: forward and reverse pass, as a ballbar report draws them
@@ -29,14 +31,6 @@ def _png(fig, dpi: int = 130) -> bytes:
     fig.savefig(buf, format="png", dpi=dpi, metadata=_PNG)
     plt.close(fig)
     return buf.getvalue()
-
-
-def _view(ball: np.ndarray, pivot) -> tuple[np.ndarray, np.ndarray]:
-    p = ball - np.asarray(pivot, float)
-    r = np.linalg.norm(p, axis=1)
-    colat = 90.0 - np.degrees(np.arcsin(np.clip(p[:, 2] / r, -1.0, 1.0)))
-    az = np.arctan2(p[:, 1], p[:, 0])
-    return colat * np.cos(az), colat * np.sin(az)
 
 
 def _frame(ax, rim: float = 90.0) -> None:
@@ -69,7 +63,7 @@ def plan_map(layers: list[tuple[str, Samples]], nodes: list[dict], pivot,
     handles = []
     for k, (name, s) in enumerate(layers):
         colour = colours(k % 10)
-        x, y = _view(s.ball_mm, pivot)
+        x, y = above_pivot(s.ball_mm, pivot)
         first = pass_of(s) == 0
         test = np.array([bool(TEST_SEGMENT.match(v)) for v in s.segment])
         moving = s.phase != "dwell"
@@ -92,7 +86,7 @@ def plan_map(layers: list[tuple[str, Samples]], nodes: list[dict], pivot,
                                     "mutation_scale": 12})
     by_id = {n["id"]: n for n in nodes}
     for n in nodes:
-        px, py = _view(np.array([n["position_mm"]]), pivot)
+        px, py = above_pivot(np.array([n["position_mm"]]), pivot)
         ax.plot(px, py, "o", ms=3.2, color="black", zorder=4)
         # the name outside the node along its azimuth, small enough for the next track
         az = np.radians(n["azimuth_deg"])
@@ -100,7 +94,7 @@ def plan_map(layers: list[tuple[str, Samples]], nodes: list[dict], pivot,
                     fontsize=6, ha="center", va="center", color="0.15", zorder=6)
     starts = {v for v in start_nodes.values() if v in by_id}
     for sid in sorted(starts):
-        px, py = _view(np.array([by_id[sid]["position_mm"]]), pivot)
+        px, py = above_pivot(np.array([by_id[sid]["position_mm"]]), pivot)
         ax.plot(px, py, "*", ms=13, color="#c00000", mec="white", mew=0.6, zorder=7)
     handles.append(plt.Line2D([], [], color="0.55", lw=0.8, ls=(0, (3, 2)),
                               label="transit"))
@@ -148,7 +142,7 @@ def where_map(s: Samples, pivot, segments: list[str], title: str) -> bytes:
     """A layer's path from above the pivot with the segments a finding lives in marked."""
     fig, ax = plt.subplots(figsize=(2.6, 2.5))
     _frame(ax)
-    x, y = _view(s.ball_mm, pivot)
+    x, y = above_pivot(s.ball_mm, pivot)
     marked = set(segments)
     for a, b in _runs(s.segment):
         if s.phase[a] in ("dwell", "reposition"):
