@@ -13,7 +13,9 @@ Commands (``--only`` picks some):
 
 * ``analyse``: the README's walkthrough, five 1 kHz layers of the default sample
   recorded by ``perturb``, analysed with the default workers;
-* ``replan``: ``replan --analysis`` of that analysis;
+* ``replan``: ``replan --analysis`` of that analysis (on the default sample no segment
+  is bad, so nothing is searched), and ``replan --segment D3-2``, whose sector is
+  searched for a new curve (candidates in worker processes);
 * ``diagnose``: one recording an hour long (layer A of the default sample planned at
   F40, 56 min, recorded by ``perturb`` at 1 kHz).
 
@@ -160,6 +162,11 @@ def main() -> None:
             if r.returncode != 0:
                 sys.exit(f"bench_memory: replan failed: {r.stderr.strip()[-400:]}")
             rows.append(("replan --analysis", wall, tree, one))
+            wall, tree, one, r = measured(CLI + ["replan", "--plan", "P", "--segment", "D3-2",
+                                                 "--out", "R2", "--force", "-q"], work)
+            if r.returncode != 0:
+                sys.exit(f"bench_memory: replan --segment failed: {r.stderr.strip()[-400:]}")
+            rows.append(("replan --segment D3-2", wall, tree, one))
     if "diagnose" in only:
         rec = _hour(work)
         wall, tree, one, r = measured(CLI + ["diagnose", "--plan", "H", "--program", "SDIT_A",

@@ -390,13 +390,18 @@ def identify_command(plan_dirs, traces, programs, linear_order, linear_basis, ro
 @click.option("--no-location", is_flag=True, help="Leave rotary location errors out.")
 @click.option("--no-pictures", is_flag=True, help="Write no pictures.")
 @click.option("--jobs", default=None, type=click.IntRange(1, 64),
-              help="Worker processes for matching and diagnosis (default: one per core); "
-                   "the output is the same for any number.")
+              help="Worker processes for matching and diagnosis (default: one per core, as "
+                   "many as --memory allows); the output is the same for any number.")
+@click.option("--memory", "memory_mb", default=1024, show_default=True,
+              type=click.IntRange(256, 1 << 20),
+              help="MB the analysis may take, all its processes together: more lets it "
+                   "diagnose recordings side by side (each takes about 2.8 MB per second "
+                   "of its program).")
 @click.option("--quiet", "-q", is_flag=True, help="No progress and no summary.")
 @_controller_option
 @_conditions_options
 def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_order,
-                    no_squareness, no_location, no_pictures, jobs, quiet, controller,
+                    no_squareness, no_location, no_pictures, jobs, memory_mb, quiet, controller,
                     operator, instrument, temperatures, date) -> None:
     """Analyse recordings of a plan's programs: geometry, effects and what stays
     unexplained, estimated together."""
@@ -436,7 +441,7 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
             options = ModelOptions("legendre", linear_order, rotary_order, not no_squareness,
                                    not no_location)
             result = analyse(plan, recs, options, step=step, note=step.note,
-                             jobs=jobs or default_jobs(),
+                             jobs=jobs or default_jobs(), memory_mb=memory_mb,
                              draw=None if no_pictures else diagnosis_pictures)
             step("writing the report")
             files = analysis_files(result, plan, _plan_sha256(plan_dir), conditions)

@@ -1,12 +1,16 @@
-"""Keeping freed memory for reuse while a long numerical job runs.
+"""Keeping freed memory for reuse while a long numerical job runs, within a bound.
 
 The diagnosis builds and drops tall matrices by the thousand (a recording's model at
 120,000 samples by 70 columns is 67 MB).  glibc hands every block above its mmap
-threshold back to the kernel when it is freed, and the next one arrives as fresh
-zeroed pages: faulting them in takes a good part of a long analysis' time.  While
-:func:`reusing_freed_memory` is active, large blocks come from the heap and stay there
-once freed (the peak resident memory hardly grows, and the output is the same byte for
-byte).  Elsewhere than glibc it does nothing.
+threshold (128 kB at first) back to the kernel when it is freed, and the next one
+arrives as fresh zeroed pages: faulting them in took a good part of a long analysis'
+time.  While :func:`reusing_freed_memory` is active, blocks up to 32 MB (glibc's
+largest threshold) come from the heap and are reused once freed; larger ones are mapped
+and unmapped as before, and at most ``keep_bytes`` of free memory is kept at the heap's
+top.  Freed memory inside the heap is returned to the kernel by
+:func:`release_freed_memory`, called where a stage ends (a recording diagnosed): kept
+for ever it made the resident memory only grow, by hundreds of MB a recording.  The
+output is the same byte for byte either way.  Elsewhere than glibc it does nothing.
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import ctypes.util
+import functools
 
 # mallopt parameters (malloc.h)
 _M_TRIM_THRESHOLD = -1
@@ -25,32 +30,49 @@ _M_MMAP_MAX = -4
 _DEFAULTS = ((_M_MMAP_MAX, 65536), (_M_TRIM_THRESHOLD, 128 * 1024), (_M_TOP_PAD, 128 * 1024),
              (_M_MMAP_THRESHOLD, 128 * 1024))
 
+#: glibc's largest mmap threshold on 64-bit systems (DEFAULT_MMAP_THRESHOLD_MAX)
+_LARGEST_THRESHOLD = 32 << 20
 
-def _mallopt():
+
+@functools.cache
+def _libc():
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        fn = libc.mallopt
+        libc.mallopt.argtypes, libc.mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
+        libc.malloc_trim.argtypes, libc.malloc_trim.restype = (ctypes.c_size_t,), ctypes.c_int
     except (OSError, AttributeError):
         return None
-    fn.argtypes, fn.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-    return fn
+    return libc
+
+
+def _mallopt():
+    libc = _libc()
+    return None if libc is None else libc.mallopt
 
 
 @contextlib.contextmanager
-def reusing_freed_memory(top_pad_bytes: int = 512 << 20):
-    """Within the block (and in processes forked in it), large allocations are served
-    from the heap and freed memory is kept for the next one instead of being returned
-    to the kernel; ``top_pad_bytes``: how far the heap grows at once (address space,
-    not memory, until it is used)."""
+def reusing_freed_memory(keep_bytes: int = 128 << 20):
+    """Within the block (and in processes forked in it), allocations up to 32 MB are
+    served from the heap and freed memory is kept for the next one, at most
+    ``keep_bytes`` of it at the heap's top."""
     mallopt = _mallopt()
     if mallopt is None:
         yield
         return
-    mallopt(_M_MMAP_MAX, 0)
-    mallopt(_M_TRIM_THRESHOLD, 2**31 - 1)
-    mallopt(_M_TOP_PAD, min(top_pad_bytes, 2**31 - 1))
+    mallopt(_M_MMAP_THRESHOLD, _LARGEST_THRESHOLD)
+    mallopt(_M_TRIM_THRESHOLD, min(keep_bytes, 2**31 - 1))
+    mallopt(_M_TOP_PAD, min(keep_bytes // 2, 2**31 - 1))
     try:
         yield
     finally:
         for param, value in _DEFAULTS:
             mallopt(param, value)
+        release_freed_memory()
+
+
+def release_freed_memory() -> None:
+    """Give the heap's free pages back to the kernel (glibc's ``malloc_trim``): where a
+    stage has let its arrays go."""
+    libc = _libc()
+    if libc is not None:
+        libc.malloc_trim(0)

@@ -25,6 +25,28 @@ def _reraise(failure):
     raise exc
 
 
+def resident_mb() -> float:
+    """This process' resident memory now (MB; 0 where /proc cannot tell)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return 0.0
+
+
+def jobs_within(memory_mb: float | None, job_mb: float, jobs: int) -> int:
+    """How many of ``jobs`` workers, each taking ``job_mb`` beside what this process
+    holds now (shared with them), fit in ``memory_mb`` for all processes together; one
+    at least (None: no bound)."""
+    if memory_mb is None or jobs <= 1:
+        return jobs
+    free = memory_mb - resident_mb()
+    return max(1, min(jobs, int(free // max(job_mb, 1e-9))))
+
+
 def default_jobs() -> int:
     """Worker processes: one per core."""
     try:

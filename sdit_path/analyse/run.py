@@ -25,10 +25,10 @@ from ..diagnose.recording import CLOCK_LIMIT_PPM, AlignedRecording, poor_fit
 from ..errormodel.errorset import ErrorSet
 from ..errormodel.model import ModelOptions
 from ..errors import RecordingError
-from ..heap import reusing_freed_memory
+from ..heap import release_freed_memory, reusing_freed_memory
 from ..identify.identify import ExtraGroup, first_gram, identification_model, identify
 from ..identify.results import Identification
-from ..parallel import each
+from ..parallel import each, jobs_within
 from ..plan.files import PlanFiles
 from ..reading.context import Context
 from ..reading.trace import Trace
@@ -94,28 +94,43 @@ def _every(trace: Trace, k: int) -> Trace:
 #: afterwards, reads every sample)
 DIAGNOSIS = DiagnosisOptions(max_rate_hz=500.0, max_fit_samples=30_000)
 
+#: what matching or diagnosing one recording adds to the process that does it, per
+#: second of its program (a 1 kHz trajectory: its context, the alignment's columns, the
+#: selection's candidates; the default sample's layers took 2.4 to 2.7 kB a sample)
+WORKER_MB_PER_S = 2.8
+
 def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
             options: ModelOptions, step=lambda msg: None, note=lambda msg: None,
             jobs: int = 1,
-            draw: Callable[[Diagnosis, Context], Mapping[str, bytes]] | None = None
-            ) -> AnalysisResult:
+            draw: Callable[[Diagnosis, Context], Mapping[str, bytes]] | None = None,
+            memory_mb: float | None = None) -> AnalysisResult:
     """``recordings``: (label, program or None, recording); ``jobs``: worker processes
-    for the per-recording stages (matching, diagnosis); ``draw``: what draws a
-    diagnosis' pictures (``sdit_path.reports.diagnosis.pictures``), run where each
-    recording was diagnosed (drawn one after another they take seconds), or None."""
+    for the per-recording stages (matching, diagnosis), as many as ``memory_mb`` (all
+    processes together; None: no bound) allows; ``draw``: what draws a diagnosis'
+    pictures (``sdit_path.reports.diagnosis.pictures``), run where each recording was
+    diagnosed (drawn one after another they take seconds), or None."""
+    longest_s = max((float(np.nanmax(trace.t_s) - np.nanmin(trace.t_s))
+                     for _, _, trace in recordings if len(trace.t_s)), default=0.0)
     with threadpool_limits(limits=1, user_api="blas"), reusing_freed_memory():
+        jobs = jobs_within(memory_mb, WORKER_MB_PER_S * longest_s, jobs)
         return _analyse(plan, recordings, options, step, note, jobs, draw)
 
 
 def _analyse(plan, recordings, options, step, note, jobs, draw):
+    # each program's context (a hundred MB at 1 kHz, built in a second) is built where
+    # it is read and let go there: kept for the whole analysis, five of them and their
+    # caches held most of its memory
     first: list[tuple[str, str, AlignedRecording, Trace]] = []
     used: dict[str, str] = {}
-    contexts: dict = {}
     labels = [label for label, _, _ in recordings]
-    matched = each(lambda k: match(plan, recordings[k][2], recordings[k][0], recordings[k][1],
-                                    contexts),
-                    labels, jobs, step, "matching and aligning {label}",
-                    sizes=[float(len(trace.t_s)) for _, _, trace in recordings])
+
+    def matched_one(k):
+        found = match(plan, recordings[k][2], recordings[k][0], recordings[k][1])
+        release_freed_memory()
+        return found
+
+    matched = each(matched_one, labels, jobs, step, "matching and aligning {label}",
+                   sizes=[float(len(trace.t_s)) for _, _, trace in recordings])
     for (label, named, trace), (rec, how) in zip(recordings, matched):
         if rec.program in used:
             raise RecordingError(f"{label}: a second recording of {rec.program} (the first: "
@@ -123,11 +138,9 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
         used[rec.program] = label
         first.append((label, how, rec, trace))
     # recordings timed run by run: their programs' trajectories re-timed as they showed
-    # (the contexts made while matching were of the plan's timing)
     for _, _, rec, _ in first:
         if rec.runs is not None:
             plan = rec.retimed(plan)
-            contexts.pop(rec.program, None)
     # the geometry first from the recordings as aligned, so that the diagnosis looks at
     # what the geometry leaves (the effect library holds only a few kinds of geometry);
     # then the geometry again with what the diagnosis found
@@ -135,19 +148,25 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
     # (every 5th sample: this estimate only feeds the diagnosis, the final one uses all;
     # with generic shapes of what any recording may hold - lags, a drift, reversal
     # steps - as nuisances, so that it does not take them for geometry and hide them)
-    generic = [dynamic_columns(program_context(plan, rec.program, contexts)) for _, _, rec, _ in first]
+    generic = [dynamic_columns(program_context(plan, rec.program, None)) for _, _, rec, _ in first]
     geo0 = identify([(plan, rec.program, _every(rec.trace, 5)) for _, _, rec, _ in first], options,
                     extra=generic, jobs=jobs)
+    del generic
+    release_freed_memory()
     model0 = ErrorSet("geometry identified from the recordings", options,
                       tuple(geo0.model_state.items()))
+
     def diagnosed(k):
         label, how, rec, trace = first[k]
-        ctx = program_context(plan, rec.program, contexts)
+        ctx = program_context(plan, rec.program, None)
         d = diagnose(plan, rec.program, trace, model0, DIAGNOSIS,
                      progress=note if jobs <= 1 else None, ctx=ctx, alignment=rec.alignment)
         # the effect columns on the trajectory grid: made where the context's caches are
         # (and the pictures in the worker too: drawn one after another they take seconds)
-        return d, effect_columns(plan, d, options, ctx), draw(d, ctx) if draw else {}
+        out = d, effect_columns(plan, d, options, ctx), draw(d, ctx) if draw else {}
+        del ctx
+        release_freed_memory()
+        return out
 
     # the final geometry's first normal equations of a recording are made here as soon
     # as its diagnosis is back and a core is free (while the last diagnoses run): the
@@ -161,9 +180,9 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
     def arrived(k, result, idle):
         label, how, rec, trace = first[k]
         d, (cols, grp), pngs = result
-        ctx = program_context(plan, rec.program, contexts)
+        end_s = float(plan.trajectory(rec.program).t_s[-1])
         done[k] = Analysed(label, rec.program, how, rec, d,
-                           _on_program_time(label, rec, trace, d, ctx), pngs)
+                           _on_program_time(label, rec, trace, d, end_s), pngs)
         if cols is not None and len(cols) != len(plan.trajectory(rec.program).t_s):
             cols, grp = None, []  # not on the trajectory grid: identify without them
         extra[k] = (cols, grp)
@@ -175,10 +194,6 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
     each(diagnosed, labels, jobs, step, "diagnosing {label}",
          sizes=[float(len(rec.trace.t_s)) for _, _, rec, _ in first], arrived=arrived)
     analysed = [done[k] for k in range(len(first))]
-    # the programs' contexts (a hundred MB each at 1 kHz) are not needed any more: let
-    # them go before the geometry's normal equations are made
-    contexts.clear()
-    del generic
     step("identifying the geometry with the effects found")
     geometry = identify([(plan, a.program, a.trace) for a in analysed], options,
                         extra=[extra[k][0] for k in range(len(first))],
@@ -188,10 +203,11 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
 
 
 def _on_program_time(label: str, rec: AlignedRecording, trace: Trace, d: Diagnosis,
-                     ctx: Context) -> Trace:
-    """The recording on program time by the diagnosis' alignment, inside the program."""
+                     end_s: float) -> Trace:
+    """The recording on program time by the diagnosis' alignment, inside the program
+    (which ends at ``end_s``)."""
     tau = d.alignment.program_time(np.asarray(trace.t_s, float))
-    inside = (tau >= 0.0) & (tau <= float(ctx.t_s[-1]))
+    inside = (tau >= 0.0) & (tau <= end_s)
     return Trace(tau[inside], np.asarray(trace.delta_l_um, float)[inside],
                  np.array([], dtype=object), np.array([], dtype=object),
                  {**trace.header, "program": rec.program, "source": f"aligned {label}"})

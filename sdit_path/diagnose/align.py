@@ -80,10 +80,17 @@ def generic_columns(ctx: Context, expected_um: np.ndarray, extra: np.ndarray | N
         # every column's spread at once (row-major: column by column reads the whole
         # matrix once per column)
         spreads.append(np.ptp(extra, axis=0))
-    X = np.column_stack(blocks)
     keep = np.concatenate(spreads) > 1e-9
     keep[0] = True
-    return X if keep.all() else X[:, keep]
+    # the kept columns written into one matrix (tall: no second copy to drop columns from)
+    X = np.empty((ctx.n, int(keep.sum())))
+    at = col = 0
+    for block in blocks:
+        kept = keep[at:at + block.shape[1]]
+        X[:, col:col + int(kept.sum())] = block if kept.all() else block[:, kept]
+        at += block.shape[1]
+        col += int(kept.sum())
+    return X
 
 
 def _generic_base(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
@@ -127,6 +134,21 @@ def _block_mean(x: np.ndarray, w: np.ndarray, edges: np.ndarray) -> tuple[np.nda
     return np.where(sw > 0, sx / np.maximum(sw, 1e-12), 0.0), sw
 
 
+def column_rms(X: np.ndarray, width: int = 8) -> np.ndarray:
+    """``sqrt(mean(X * X, axis=0))`` to the bit, squaring ``width`` columns at a time
+    (numpy sums a block of three or more columns row by row, as it sums the whole
+    matrix; so the last block takes the columns before it too)."""
+    m = X.shape[1]
+    if m < 3:
+        return np.sqrt(np.mean(X * X, axis=0))
+    out = np.empty(m)
+    for a in range(0, m, width):
+        b = min(a + width, m)
+        lo = min(a, max(b - width, 0))
+        out[a:b] = np.sqrt(np.mean(X[:, lo:b] * X[:, lo:b], axis=0))[a - lo:]
+    return out
+
+
 #: the coarse search correlates directly (a matrix product) when offsets x program
 #: blocks is at most this many times the transform length (the product is several times
 #: faster up to a few hundred offsets, and slower beyond)
@@ -151,10 +173,11 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     edges_p = np.arange(nb + 1) * per
     # columns at unit RMS: the small ridge that keeps the solves regular must not
     # penalise a column for its units (it biases the search by tenths of a second)
-    X = X / np.maximum(np.sqrt(np.mean(X * X, axis=0)), 1e-12)
-    Xb = np.column_stack([_block_mean(X[:, a], np.ones(ctx.n), edges_p)[0]
+    # (the scaled matrix and its squares would be two more copies of a tall one)
+    unit = np.maximum(column_rms(X), 1e-12)
+    Xb = np.column_stack([_block_mean(X[:, a] / unit[a], np.ones(ctx.n), edges_p)[0]
                           for a in range(X.shape[1])])
-    x0, xT = X[0], X[-1]
+    x0, xT = X[0] / unit, X[-1] / unit
     valid = np.isfinite(y)
     yv = np.where(valid, y, 0.0)
     step_ppm = max(1.0, drift_s / max(T, 1e-9) * 1e6)

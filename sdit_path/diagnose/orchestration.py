@@ -86,17 +86,19 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
         if stride > 1:
             t_m, y = t_m[::stride], y[::stride]
     step("alignment")
-    base = alignment_columns(plan, ctx)
+    # (the alignment's own columns are tall, 65 on every trajectory sample: made where
+    # they are read and let go there)
     if alignment is None:
         ok = np.isfinite(y)
-        al = align(ctx, expected, t_m, y, extra=base, noise_um=noise_estimate(y[ok], t_m[ok]))
+        al = align(ctx, expected, t_m, y, extra=alignment_columns(plan, ctx),
+                   noise_um=noise_estimate(y[ok], t_m[ok]))
     elif model is not None:
         # the caller aligned without the geometry; the reading's geometric part holds
         # timing of its own, and a clock read without it can be off enough for the first
         # pass to name a play and a stick-slip for a servo mismatch: polished with it
         # (hard case: analyse-s2-1)
-        al = refine(ctx, generic_columns(ctx, expected, base), t_m, y, alignment.offset_s,
-                    alignment.clock_ppm)
+        al = refine(ctx, generic_columns(ctx, expected, alignment_columns(plan, ctx)), t_m, y,
+                    alignment.offset_s, alignment.clock_ppm)
     else:
         al = alignment
     lib = library(plan.config.machine, plan.tested_travel())

@@ -6,6 +6,7 @@ Everything here follows from the plan (trajectory + kinematics); nothing from a 
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -14,6 +15,56 @@ from ..machine.kinematics import Kinematics
 from ..plan.files import PlanFiles
 from ..timing.trajectory import axis_values_rad
 from .written import written_deviation_um
+
+
+#: what a context's cache of derived arrays may hold (a sweep of a mode's frequencies
+#: over 40,000 samples is 92 MB; a reversal's onsets over an hour at 1 kHz 40 MB)
+CACHE_BYTES = 128 << 20
+
+
+def _nbytes(value) -> int:
+    if isinstance(value, np.ndarray):
+        return value.nbytes
+    if isinstance(value, (tuple, list)):
+        return sum(_nbytes(v) for v in value)
+    if isinstance(value, dict):
+        return sum(_nbytes(v) for v in value.values())
+    return 0
+
+
+class ArrayCache(OrderedDict):
+    """Arrays derived from a context, kept by the stages that read them: once they hold
+    more than ``limit_bytes`` together, the least recently used go (the newest stays
+    whatever its size).  A value is the same whether kept or made again, so what is let
+    go changes the time, never a result."""
+
+    def __init__(self, limit_bytes: int = CACHE_BYTES):
+        super().__init__()
+        self.limit_bytes = limit_bytes
+
+    def __getitem__(self, key):
+        value = super().__getitem__(key)
+        self.move_to_end(key)
+        return value
+
+    def __setitem__(self, key, value):
+        super().__setitem__(key, value)
+        self.move_to_end(key)
+        sizes = {k: _nbytes(v) for k, v in self.items()}
+        total = sum(sizes.values())
+        for k in list(self):
+            if total <= self.limit_bytes or k == key:
+                break
+            total -= sizes[k]
+            super().__delitem__(k)
+
+    def setdefault(self, key, default=None):
+        if key not in self:
+            self[key] = default
+        return self[key]
+
+    def nbytes(self) -> int:
+        return sum(_nbytes(v) for v in self.values())
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,8 +119,9 @@ class Context:
     #: the trajectory is a control's motion of the program as written (its chords
     #: included), not the planned curve: its own distance from the pivot is the reading
     control_path: bool = False
-    #: arrays derived from the others, kept by the stages that read them (keyed by each)
-    cache: dict = field(default_factory=dict)
+    #: arrays derived from the others, kept by the stages that read them (keyed by each),
+    #: within :data:`CACHE_BYTES`
+    cache: ArrayCache = field(default_factory=ArrayCache)
 
     def slow_state(self, j: int, speed: float) -> tuple[np.ndarray, np.ndarray]:
         """Whether axis j crawls (moving, slower than ``speed``) and the time since it

@@ -116,3 +116,57 @@ def test_the_ripple_search_sums_what_the_sines_gave():
         assert np.abs(sums - sines).max() <= 1e-12 * sines.max()
         assert int(np.argmax(sums)) == int(np.argmax(sines))
         assert abs(1 / inv[int(np.argmax(sums))] - 7.3) < 0.3
+
+
+# -- memory (issue 50): what is kept is bounded, and the numbers are the same -----------
+
+
+@pytest.mark.parametrize("m", [1, 2, 3, 5, 8, 9, 11, 65, 76])
+def test_column_rms_is_the_whole_matrix_mean_to_the_bit(m):
+    X = np.random.default_rng(m).normal(size=(50_003, m)) * np.geomspace(1e-3, 1e3, m)
+    assert np.array_equal(align_mod.column_rms(X), np.sqrt(np.mean(X * X, axis=0)))
+
+
+def test_the_generic_columns_are_the_stacked_blocks_with_flat_ones_dropped(recorded):
+    plan, ctx, expected = recorded[:3]
+    extra = alignment_columns(plan, ctx)
+    extra[:, 3] = 0.0  # flat: dropped
+    X = generic_columns(ctx, expected, extra)
+    base, spread = align_mod._generic_base(ctx)
+    full = np.column_stack([expected[:, None], base, extra])
+    keep = np.concatenate([[True], spread > 1e-9, np.ptp(extra, axis=0) > 1e-9])
+    assert X.shape[1] == full.shape[1] - int((~keep).sum()) < full.shape[1]
+    assert np.array_equal(X, full[:, keep])
+
+
+def test_a_context_cache_lets_the_least_recently_used_go_beyond_its_bound():
+    from sdit_path.reading.context import ArrayCache
+
+    cache = ArrayCache(limit_bytes=3 * 8000)
+    for k in range(3):
+        cache[k] = np.zeros(1000)
+    assert cache[0] is not None  # 0 used: 1 is now the least recently used
+    cache[3] = np.zeros(1000)
+    assert list(cache) == [2, 0, 3] and cache.nbytes() <= cache.limit_bytes
+    cache["big"] = np.zeros(10_000)  # alone beyond the bound: the newest stays
+    assert list(cache) == ["big"]
+    nested = cache.setdefault("pose", {})
+    nested["a"] = np.zeros(10)
+    assert cache["pose"] is nested
+
+
+def test_an_effects_memo_keeps_the_newest_within_its_bytes(monkeypatch):
+    from sdit_path.diagnose.effects import base
+
+    monkeypatch.setattr(base, "MEMO_BYTES", 2 * 8000)
+    cache: dict = {}
+    made = []
+    ctx = object()
+
+    def make(v):
+        made.append(v)
+        return np.full(1000, v)
+
+    for v in (1.0, 2.0, 3.0, 3.0):
+        assert base.memo(cache, ctx, v, lambda: make(v))[0] == v
+    assert made == [1.0, 2.0, 3.0] and len(cache) == 2

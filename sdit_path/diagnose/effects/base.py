@@ -63,15 +63,25 @@ def fitted_beside(basis: np.ndarray | None):
         _BESIDE.reset(token)
 
 
+#: what one effect's :func:`memo` keeps at most (24 lagged axis rates of a 5-minute
+#: program at 1 kHz are 170 MB; of an hour-long one, 2 GB)
+MEMO_BYTES = 48 << 20
+
+
 def memo(cache: dict, ctx: Context, value: float, make, digits: int = 9):
     """``make()`` for one context and parameter value, kept in ``cache`` (at most 24
-    entries: the grid and the profiled values of one diagnosis).  The context rides
+    entries, the grid and the profiled values of one diagnosis, and
+    :data:`MEMO_BYTES`: the oldest go first, the newest stays).  The context rides
     along with its result so that its id cannot be reused while cached."""
     key = (id(ctx), round(value, digits) if isinstance(value, float) else value)
     if key not in cache:
-        if len(cache) >= 24:
-            cache.pop(next(iter(cache)))
-        cache[key] = (ctx, make())
+        made = make()
+        size = lambda v: sum(a.nbytes for a in (v if isinstance(v, tuple) else (v,))  # noqa: E731
+                             if isinstance(a, np.ndarray))
+        total = size(made) + sum(size(v) for _, v in cache.values())
+        while cache and (len(cache) >= 24 or total > MEMO_BYTES):
+            total -= size(cache.pop(next(iter(cache)))[1])
+        cache[key] = (ctx, made)
     return cache[key][1]
 
 

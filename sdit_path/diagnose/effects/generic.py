@@ -35,15 +35,22 @@ def alignment_columns(plan: PlanFiles, ctx: Context, pose_only: bool = False) ->
     may hold cannot pull the timing: geometry as functions of the pose (squareness,
     scale, and the smooth geometry beyond the model) and, unless ``pose_only``,
     different servo lags, a drift, and reversal-locked steps and pulses (backlash,
-    lateral play, friction spikes)."""
-    pose = np.column_stack(pose_blocks(plan, ctx))
-    return pose if pose_only else np.column_stack([pose, dynamic_columns(ctx)])
+    lateral play, friction spikes).  (Stacked once from their blocks: tall, 65 columns
+    on every trajectory sample.)"""
+    blocks = pose_blocks(plan, ctx)
+    if not pose_only:
+        blocks += _dynamic_blocks(ctx)
+    return np.column_stack(blocks)
 
 
 def dynamic_columns(ctx: Context) -> np.ndarray:
     """What any recording may hold besides geometry, in generic shapes: different servo
     lags, a drift, and reversal-locked steps and pulses (backlash, lateral play,
     friction spikes)."""
+    return np.column_stack(_dynamic_blocks(ctx))
+
+
+def _dynamic_blocks(ctx: Context) -> list[np.ndarray]:
     allg = Samples(np.arange(ctx.n), ctx.t_s)
     cols = [ServoMismatch().columns(ctx, allg, {})[0]]
     cols.append(ctx.u_bed * (ctx.t_s / 3600.0)[:, None])
@@ -62,4 +69,4 @@ def dynamic_columns(ctx: Context) -> np.ndarray:
         for onset in (ReversalSpike.onsets_mm_s[0], 0.05):
             cols.append(ReversalSpike().columns(ctx, allg, {"tau_ms": 25.0, "onset_mm_s": onset})[0])
         cols.append(LateralPlay().columns(ctx, allg, {})[0])
-    return np.column_stack(cols)
+    return cols
