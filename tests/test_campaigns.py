@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from hostile_cases import RECORDING_CASES
+
 pytestmark = pytest.mark.campaign
 
 VALIDATION = Path(__file__).resolve().parents[1] / "validation"
@@ -60,9 +62,13 @@ def test_analyse_blind_recovers_the_geometry_names_the_effect_and_refuses_strang
     assert case["refusals"] and all(x["refused"] for x in case["refusals"]), case["refusals"]
 
 
-def test_fuzz_campaign_plans_mutated_configs_without_a_traceback():
-    """A bounded sample of the outside fuzzing campaign: mutated configs planned end to
-    end in their own processes, none ending in a traceback, a signal or a hang."""
-    out = run("fuzz_campaign.py", "--cases", "6", "--seed", "3", "--timeout", "300")
-    assert "6 mutated configs planned end to end" in out
+def test_hostile_campaign_ends_every_case_in_one_line_or_a_result():
+    """A bounded sample of the hostile-input campaign: mutated configs planned end to
+    end, mutated recordings and the named bad ones identified and diagnosed, edited plan
+    directories simulated, identified and diagnosed, each in its own process: no
+    traceback, signal, hang or second error line, no exit 0 where a refusal is due."""
+    out = run("hostile_campaign.py", "--cases", "3", "--seed", "3", "--timeout", "300")
+    assert "config: 3 case(s)" in out and "plan: 3 case(s): refused 3" in out, out
+    assert f"recording: {3 + len(RECORDING_CASES)} case(s)" in out, out
+    assert "tracebacks: 0, wrong exits 0: 0, signals: 0, hangs: 0" in out, out
     assert int(re.search(r"failures: (\d+)", out).group(1)) == 0, out

@@ -6,8 +6,6 @@ a silent wrong success."""
 
 from __future__ import annotations
 
-import gzip
-import hashlib
 import json
 import os
 import random
@@ -27,10 +25,11 @@ from sdit_path.config import sample_path
 from sdit_path.errors import ConfigError, SditError
 from sdit_path.output import MARKER, write_file, write_tree
 from sdit_path.plan.configure import parse_config
-from sdit_path.plan.files import load_plan, sealed
+from sdit_path.plan.files import load_plan
 from sdit_path.reading.recording import read_trace
 
 from conftest import DATA, edit, have_linuxcnc
+from hostile_cases import PLAN_EDITS
 from mutate import mutate_config, mutate_trace
 
 SMALL = DATA / "golden_small.toml"
@@ -268,94 +267,6 @@ def small_plan(tmp_path_factory) -> Path:
     r = run("plan", str(SMALL), "--out", str(out), "-q")
     assert r.returncode == 0, r.stderr
     return out
-
-
-def _refingerprint(d: Path) -> None:
-    """Make plan.json's fingerprints match the (edited) files: a deliberate, consistent
-    edit, so that the content checks behind the fingerprints are exercised."""
-    m = json.loads((d / "plan.json").read_text())
-    for rel in m["files"]:
-        if (d / rel).is_file():
-            m["files"][rel] = hashlib.sha256((d / rel).read_bytes()).hexdigest()
-    (d / "plan.json").write_text(json.dumps(sealed(m)))
-
-
-def _traj_edit(fn, refingerprint=True):
-    def apply(d: Path):
-        p = d / "trajectories" / "GOLD_A.csv.gz"
-        lines = gzip.decompress(p.read_bytes()).decode().splitlines()
-        p.write_bytes(gzip.compress(("\n".join(fn(lines)) + "\n").encode()))
-        if refingerprint:
-            _refingerprint(d)
-    return apply
-
-
-def _manifest_edit(fn, reseal=True):
-    """An edit of plan.json, sealed again (a deliberate, consistent edit that the value
-    checks behind the seal must catch) or not (the seal must)."""
-    def apply(d: Path):
-        m = json.loads((d / "plan.json").read_text())
-        m = fn(m)
-        (d / "plan.json").write_text(json.dumps(sealed(m) if reseal else m))
-    return apply
-
-
-def _first_data(lines):
-    return next(i for i, ln in enumerate(lines) if ln and not ln.startswith("#")) + 1
-
-
-PLAN_EDITS = {
-    "plan.json not UTF-8": (lambda d: (d / "plan.json").write_bytes(b"\xff\xfe{}"), "not UTF-8"),
-    "plan.json []": (lambda d: (d / "plan.json").write_text("[]"), "not a plan manifest"),
-    "plan.json null": (lambda d: (d / "plan.json").write_text("null"), "not a plan manifest"),
-    "plan.json a string": (lambda d: (d / "plan.json").write_text('"x"'), "not a plan manifest"),
-    "plan.json a folder": (lambda d: ((d / "plan.json").unlink(), (d / "plan.json").mkdir()),
-                           "is a directory"),
-    "programs missing": (_manifest_edit(lambda m: {k: v for k, v in m.items() if k != "programs"}),
-                         "programs: expected"),
-    "trajectory a number": (_manifest_edit(lambda m: {**m, "programs": [
-        {**p, "trajectory": 7} for p in m["programs"]]}), "programs: expected"),
-    "tested_travel missing": (_manifest_edit(
-        lambda m: {k: v for k, v in m.items() if k != "tested_travel"}), "tested_travel"),
-    "trajectory outside": (_manifest_edit(lambda m: {**m, "programs": [
-        {**p, "trajectory": "../../etc/passwd"} for p in m["programs"]]}), "outside the plan"),
-    "trajectory absolute": (_manifest_edit(lambda m: {**m, "programs": [
-        {**p, "trajectory": "/etc/passwd"} for p in m["programs"]]}), "outside the plan"),
-    "plan.json edited": (_manifest_edit(lambda m: {**m, "machine": "another"}, reseal=False),
-                         "changed since it was planned"),
-    "plan.json unsealed": (_manifest_edit(lambda m: {k: v for k, v in m.items()
-                                                     if k != "sealed_sha256"}, reseal=False),
-                           "carries no seal"),
-    "tested_travel zero width": (_manifest_edit(lambda m: {**m, "tested_travel": {
-        **m["tested_travel"], "X": [5, 5]}}), "min < max"),
-    "tested_travel unknown axis": (_manifest_edit(lambda m: {**m, "tested_travel": {
-        **m["tested_travel"], "Q": [0, 5]}}), "not a linear axis"),
-    "tested_travel NaN": (_manifest_edit(lambda m: {**m, "tested_travel": {
-        **m["tested_travel"], "X": [float("nan"), 5]}}), "tested_travel"),
-    "sphere radius NaN": (_manifest_edit(lambda m: {**m, "sphere": {
-        **m["sphere"], "radius_mm": float("nan")}}), "finite"),
-    "sphere moved": (_manifest_edit(lambda m: {**m, "sphere": {
-        **m["sphere"], "radius_mm": m["sphere"]["radius_mm"] + 1}}), "differs from the config"),
-    "config edited": (lambda d: (d / "config.toml").write_text(
-        (d / "config.toml").read_text().replace("1000.0", "1200.0")), "changed since it was planned"),
-    "trajectories swapped": (lambda d: (
-        (d / "trajectories" / "GOLD_A.csv.gz").rename(d / "x"),
-        (d / "trajectories" / "GOLD_B.csv.gz").rename(d / "trajectories" / "GOLD_A.csv.gz"),
-        (d / "x").rename(d / "trajectories" / "GOLD_B.csv.gz")), "changed since it was planned"),
-    "trajectory edited": (_traj_edit(lambda ls: ls[:-5], refingerprint=False),
-                          "changed since it was planned"),
-    "header only": (_traj_edit(lambda ls: ls[:_first_data(ls)]), "sample(s)"),
-    "cut to 10 rows": (_traj_edit(lambda ls: ls[:_first_data(ls) + 10]), None),
-    "a NaN": (_traj_edit(lambda ls: ls[:40] + [re.sub(r",[-0-9.]+,", ",nan,", ls[40], count=1)]
-              + ls[41:]), "not a finite number"),
-    "axis_X renamed": (_traj_edit(lambda ls: [ln.replace("axis_X_mm", "axis_Q_mm") for ln in ls]),
-                       "axis columns"),
-    "axis_X dropped": (_traj_edit(lambda ls: [
-        ",".join(c for j, c in enumerate(ln.split(",")) if j != 4) if not ln.startswith("#")
-        else ln for ln in ls]), "axis columns"),
-    "time backwards": (_traj_edit(lambda ls: ls[:50] + [ls[52], ls[51], ls[50]] + ls[53:]),
-                       "time does not increase"),
-}
 
 
 @pytest.mark.parametrize("name", sorted(PLAN_EDITS))

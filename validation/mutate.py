@@ -1,5 +1,5 @@
 """Seeded mutations of what users hand the tool (a configuration, a recording): the
-fuzzing campaign (``fuzz_campaign.py``) and the hostile-input tests draw from here."""
+hostile-input campaign (``hostile_campaign.py``) and the hostile-input tests draw from here."""
 
 from __future__ import annotations
 
@@ -60,4 +60,27 @@ def mutate_trace(text: str, rng: random.Random) -> str:
             lines.insert(i, rng.choice(["# x: y", "", "t_s,delta_l_um", "\ufeff", "#"]))
         else:
             lines = [ln.replace(",", ";") for ln in lines]
+    return "\n".join(lines) + "\n"
+
+
+_NUMBER = r"(?<![\w.])-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?"
+
+
+def mutate_numbers(text: str, rng: random.Random) -> str:
+    """Scale one to three numbers of the config by 10^U(-3, 3), sometimes flipping the
+    sign: mostly plausible configs that reach the planner's corners."""
+    lines = text.splitlines()
+    for _ in range(rng.randint(1, 3)):
+        cand = [i for i, ln in enumerate(lines)
+                if "=" in ln and not ln.lstrip().startswith("#") and re.search(_NUMBER, ln)]
+        i = rng.choice(cand)
+        key, value = lines[i].split("=", 1)
+        value = value.split("#", 1)[0]
+        matches = list(re.finditer(_NUMBER, value))
+        m = rng.choice(matches)
+        x = float(m.group(0)) * 10 ** rng.uniform(-3, 3) * (-1 if rng.random() < 0.15 else 1)
+        new = f"{x:.6g}" if "." in m.group(0) or "e" in m.group(0) else str(int(round(x)))
+        if "." not in new and "e" not in new and "." in m.group(0):
+            new += ".0"
+        lines[i] = key + "=" + value[:m.start()] + new + value[m.end():]
     return "\n".join(lines) + "\n"

@@ -16,6 +16,7 @@ last pose.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,8 +83,10 @@ def generic_columns(ctx: Context, expected_um: np.ndarray, extra: np.ndarray | N
         spreads.append(np.ptp(extra, axis=0))
     keep = np.concatenate(spreads) > 1e-9
     keep[0] = True
-    # the kept columns written into one matrix (tall: no second copy to drop columns from)
-    X = np.empty((ctx.n, int(keep.sum())))
+    # the kept columns written into one matrix (tall: no second copy to drop columns
+    # from), laid out as numpy lays out the columns it picks: by column where some are
+    # dropped (the products with it, and so every alignment, are the same to the bit)
+    X = np.empty((ctx.n, int(keep.sum())), order="C" if keep.all() else "F")
     at = col = 0
     for block in blocks:
         kept = keep[at:at + block.shape[1]]
@@ -319,6 +322,8 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
         JJ = J.T @ J  # once for the step and its uncertainty
         sol = pinv_gram(JJ) @ (J.T @ yy)
         r = yy - Xs @ beta
+        # (tall, and not read again: the trials below make their own)
+        del J, Xs
         std = _timing_std(JJ, r)
         d_off = float(np.clip(sol[-2], -max_step_s, max_step_s))
         d_k = float(sol[-1]) * 1e-6
@@ -457,16 +462,22 @@ COARSE_ALL_COLUMNS_S = 1200.0
 
 
 def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
-          ppm_limit: float = CLOCK_LIMIT_PPM, extra: np.ndarray | None = None, candidates: int = 5,
+          ppm_limit: float = CLOCK_LIMIT_PPM,
+          extra: np.ndarray | Callable[[], np.ndarray] | None = None, candidates: int = 5,
           seeds: tuple[tuple[float, float], ...] = (), model: np.ndarray | None = None,
           search: bool = True, noise_um: float | None = None) -> Alignment:
     """The global search (``candidates`` distinct minima, plus ``seeds``: alignments
-    found before) polished at the full rate; the lowest residual wins.  ``model``:
+    found before) polished at the full rate; the lowest residual wins.  ``extra``:
+    columns beside the generic ones, or what makes them (called once).  ``model``:
     ``generic_columns(ctx, expected_um, extra)`` if the caller has it already; without
     ``search``, only the seeds are polished.  With ``noise_um`` (the recording's
     noise), a searched result that leaves more than ``LOCAL_SCAN_EXPLAINED`` times it
     is checked against its neighbourhood (:func:`local_scan`)."""
-    X = generic_columns(ctx, expected_um, extra) if model is None else model
+    if callable(extra):  # made here and let go once in X (tall: see alignment_columns)
+        X = generic_columns(ctx, expected_um, extra()) if model is None else model
+        extra = True
+    else:
+        X = generic_columns(ctx, expected_um, extra) if model is None else model
     check_span(t_m[-1] - t_m[0], ctx.duration_s, ppm_limit)
     valid = int(np.isfinite(y).sum())
     if valid < max(1000, 0.5 * len(y)):

@@ -90,7 +90,7 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     # they are read and let go there)
     if alignment is None:
         ok = np.isfinite(y)
-        al = align(ctx, expected, t_m, y, extra=alignment_columns(plan, ctx),
+        al = align(ctx, expected, t_m, y, extra=lambda: alignment_columns(plan, ctx),
                    noise_um=noise_estimate(y[ok], t_m[ok]))
     elif model is not None:
         # the caller aligned without the geometry; the reading's geometric part holds

@@ -177,7 +177,7 @@ def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
     noise = noise_estimate(y[ok], t_m[ok])
     try:
         al = align(ctx, expected, t_m, y, ppm_limit=CLOCK_LIMIT_PPM,
-                   extra=alignment_columns(plan, ctx), noise_um=noise)
+                   extra=lambda: alignment_columns(plan, ctx), noise_um=noise)
     except AlignmentError as exc:
         raise RecordingError(f"{label}: {exc}") from None
     tau = al.program_time(t_m)

@@ -208,10 +208,13 @@ def sample_at(t: np.ndarray, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
     # tall matrix instead of four temporaries)
     out = X[i]
     out *= 1 - f
-    nxt = X[np.minimum(i + 1, len(t) - 1)]
-    nxt *= f
-    out += nxt
+    nxt = np.minimum(i + 1, len(t) - 1)
+    for a in range(0, len(out), _ROWS):  # the next rows a block at a time: no second copy
+        out[a:a + _ROWS] += X[nxt[a:a + _ROWS]] * f[a:a + _ROWS]
     return out
+
+
+_ROWS = 16384
 
 
 def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> Context:

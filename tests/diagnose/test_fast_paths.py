@@ -136,7 +136,9 @@ def test_the_generic_columns_are_the_stacked_blocks_with_flat_ones_dropped(recor
     full = np.column_stack([expected[:, None], base, extra])
     keep = np.concatenate([[True], spread > 1e-9, np.ptp(extra, axis=0) > 1e-9])
     assert X.shape[1] == full.shape[1] - int((~keep).sum()) < full.shape[1]
-    assert np.array_equal(X, full[:, keep])
+    want = full[:, keep]
+    assert np.array_equal(X, want)
+    assert X.flags.f_contiguous == want.flags.f_contiguous  # BLAS sums in its layout's order
 
 
 def test_a_context_cache_lets_the_least_recently_used_go_beyond_its_bound():
@@ -170,3 +172,18 @@ def test_an_effects_memo_keeps_the_newest_within_its_bytes(monkeypatch):
     for v in (1.0, 2.0, 3.0, 3.0):
         assert base.memo(cache, ctx, v, lambda: make(v))[0] == v
     assert made == [1.0, 2.0, 3.0] and len(cache) == 2
+
+
+def test_sampling_a_tall_matrix_block_by_block_is_the_same_arithmetic():
+    from sdit_path.reading.context import sample_at
+
+    rng = np.random.default_rng(0)
+    t = np.arange(60_000) * 1e-3
+    X = rng.normal(size=(len(t), 5))
+    tau = np.sort(rng.uniform(-1.0, 70.0, 40_001))
+    x = np.clip(tau / 1e-3, 0.0, len(t) - 1.000001)
+    i = x.astype(int)
+    f = (x - i)[:, None]
+    want = X[i] * (1 - f) + X[np.minimum(i + 1, len(t) - 1)] * f
+    assert np.array_equal(sample_at(t, X, tau), want)
+    assert np.array_equal(sample_at(t, X[:, 2], tau), want[:, 2])
