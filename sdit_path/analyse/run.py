@@ -152,19 +152,23 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
     geo0 = identify([(plan, rec.program, _every(rec.trace, 5)) for _, _, rec, _ in first], options,
                     extra=generic, jobs=jobs)
     del generic
+    plan.let_go()
     release_freed_memory()
     model0 = ErrorSet("geometry identified from the recordings", options,
                       tuple(geo0.model_state.items()))
 
     def diagnosed(k):
         label, how, rec, trace = first[k]
+        plan.let_go(keep=rec.program)
         ctx = program_context(plan, rec.program, None)
         d = diagnose(plan, rec.program, trace, model0, DIAGNOSIS,
                      progress=note if jobs <= 1 else None, ctx=ctx, alignment=rec.alignment)
         # the effect columns on the trajectory grid: made where the context's caches are
         # (and the pictures in the worker too: drawn one after another they take seconds)
-        out = d, effect_columns(plan, d, options, ctx), draw(d, ctx) if draw else {}
+        out = (d, effect_columns(plan, d, options, ctx), draw(d, ctx) if draw else {},
+               (ctx.n, float(ctx.t_s[-1])))
         del ctx
+        plan.let_go()
         release_freed_memory()
         return out
 
@@ -179,11 +183,10 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
 
     def arrived(k, result, idle):
         label, how, rec, trace = first[k]
-        d, (cols, grp), pngs = result
-        end_s = float(plan.trajectory(rec.program).t_s[-1])
+        d, (cols, grp), pngs, (n, end_s) = result
         done[k] = Analysed(label, rec.program, how, rec, d,
                            _on_program_time(label, rec, trace, d, end_s), pngs)
-        if cols is not None and len(cols) != len(plan.trajectory(rec.program).t_s):
+        if cols is not None and len(cols) != n:
             cols, grp = None, []  # not on the trajectory grid: identify without them
         extra[k] = (cols, grp)
         waiting.append(k)

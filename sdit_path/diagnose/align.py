@@ -58,8 +58,8 @@ def timing_is_weak(al: Alignment, offset_s: float = 0.002, clock_ppm: float = 5.
 CLOCK_LIMIT_PPM = 200.0
 
 
-def generic_columns(ctx: Context, expected_um: np.ndarray, extra: np.ndarray | None = None
-                    ) -> np.ndarray:
+def generic_columns(ctx: Context, expected_um: np.ndarray,
+                    extra: np.ndarray | list[np.ndarray] | None = None) -> np.ndarray:
     """``(n, m)`` on the trajectory grid: expected reading (if it varies), constant,
     bar direction, a smoothed motion indicator, -v^2/(2L), time, the reading of the
     axes' accelerations and a step at each reversal of every linear axis.
@@ -69,18 +69,18 @@ def generic_columns(ctx: Context, expected_um: np.ndarray, extra: np.ndarray | N
     tau^2 * a / 2 beyond the pure delay) and the path's curvature (v^2 / (2 L)); on a
     slow program whose reading hardly moves (a 5-axis test at 10 mm/s: 0.4 um/s) that
     remainder, a tenth of a micrometre, otherwise pulls the clock to the end of its
-    range."""
+    range.  ``extra``: more columns, or blocks of them (stacked here once)."""
     base, spread = _generic_base(ctx)
     blocks, spreads = [base], [spread]
     if np.ptp(expected_um) > 1e-3:
         blocks.insert(0, np.asarray(expected_um, float)[:, None])
         spreads.insert(0, np.ptp(blocks[0], axis=0))
-    if extra is not None:
-        extra = np.asarray(extra, float).reshape(ctx.n, -1)
-        blocks.append(extra)
+    for part in (extra if isinstance(extra, list) else [] if extra is None else [extra]):
+        part = np.asarray(part, float).reshape(ctx.n, -1)
+        blocks.append(part)
         # every column's spread at once (row-major: column by column reads the whole
         # matrix once per column)
-        spreads.append(np.ptp(extra, axis=0))
+        spreads.append(np.ptp(part, axis=0))
     keep = np.concatenate(spreads) > 1e-9
     keep[0] = True
     # the kept columns written into one matrix (tall: no second copy to drop columns
@@ -90,9 +90,14 @@ def generic_columns(ctx: Context, expected_um: np.ndarray, extra: np.ndarray | N
     at = col = 0
     for block in blocks:
         kept = keep[at:at + block.shape[1]]
-        X[:, col:col + int(kept.sum())] = block if kept.all() else block[:, kept]
         at += block.shape[1]
-        col += int(kept.sum())
+        if kept.all():
+            X[:, col:col + block.shape[1]] = block
+            col += block.shape[1]
+            continue
+        for j in np.flatnonzero(kept):  # one by one: picking them would copy the block
+            X[:, col] = block[:, j]
+            col += 1
     return X
 
 

@@ -43,11 +43,12 @@ def expected_reading(plan: PlanFiles, ctx: Context, model: ErrorSet | None) -> n
 
 class TrialModel:
     """``generic_columns(ctx, expected, [fixed, cols])`` for one trial's ``cols`` after
-    another (a parameter profiled on a grid): the same matrix, built once and its last
+    another (a parameter profiled on a grid; ``fixed`` a matrix or its blocks): the same matrix, built once and its last
     columns overwritten while every new column varies as the last ones did (the generic
     columns drop a constant column, so the matrix's shape can depend on them)."""
 
-    def __init__(self, ctx: Context, expected: np.ndarray, fixed: np.ndarray):
+    def __init__(self, ctx: Context, expected: np.ndarray,
+                 fixed: np.ndarray | list[np.ndarray]):
         self.ctx, self.expected, self.fixed = ctx, expected, fixed
         self.X: np.ndarray | None = None
         self.width = 0
@@ -58,7 +59,8 @@ class TrialModel:
         if self.X is not None and varies and cols.shape[1] == self.width:
             self.X[:, -self.width:] = cols
             return self.X
-        X = generic_columns(self.ctx, self.expected, np.column_stack([self.fixed, cols]))
+        fixed = self.fixed if isinstance(self.fixed, list) else [self.fixed]
+        X = generic_columns(self.ctx, self.expected, [*fixed, cols])
         if varies:
             self.X, self.width = X, cols.shape[1]
         return X

@@ -18,6 +18,7 @@ import logging
 import numpy as np
 
 from ..errormodel.errorset import ErrorSet
+from ..heap import release_freed_memory
 from ..plan.files import PlanFiles
 from ..reading.context import Context, build_context
 from ..reading.trace import Trace
@@ -101,6 +102,7 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
                     alignment.offset_s, alignment.clock_ppm)
     else:
         al = alignment
+    release_freed_memory()  # (the alignment's tall columns: gone before the selection's)
     lib = library(plan.config.machine, plan.tested_travel())
     first = explain(ctx, lib, expected, t_m, y, al, options, step, finalize=False)
     # realign with the explained model (the first alignment already searched with what

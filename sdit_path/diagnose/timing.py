@@ -127,7 +127,7 @@ def settle_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np
     and the effects to judge again."""
     X = model_columns(ctx, lib, expected, findings)
     D = shape_columns(ctx, lib, findings)
-    al, jump = realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:], D]), first_al)
+    al, jump = realign(ctx, expected, t_m, y, [*pose, X[:, 2:], D], first_al)
     shifted, widen_s, why_s = shape_scan(ctx, lib, expected, t_m, y, pose, findings, al, jump)
     seed = first_al
     if shifted is not None:
@@ -136,7 +136,7 @@ def settle_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np
         # back to the neighbouring valley; hard case: blind-bad-SDIT_C-s2-39)
         X = model_columns(ctx, lib, expected, findings)
         D = shape_columns(ctx, lib, findings)
-        al, jump = realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:], D]),
+        al, jump = realign(ctx, expected, t_m, y, [*pose, X[:, 2:], D],
                             shifted)
         seed = al
     changed, widen = profile_timing(ctx, lib, expected, t_m, y, pose, findings, al, jump)
@@ -144,7 +144,7 @@ def settle_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np
         # the lagged findings' columns changed with it: the timing searched again
         X = model_columns(ctx, lib, expected, findings)
         D = shape_columns(ctx, lib, findings)
-        al, jump = realign(ctx, expected, t_m, y, np.column_stack([*pose, X[:, 2:], D]), seed)
+        al, jump = realign(ctx, expected, t_m, y, [*pose, X[:, 2:], D], seed)
     by = {e.name: e for e in lib}
     lagged = sorted(f.effect for f in findings if by[f.effect].timing_parameter)
     al = widened(al, widen, f"what the lag of {' and '.join(lagged)}, profiled with the "
@@ -161,7 +161,7 @@ def settle_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np
         # timing: without them the start moves by about what the information lost
         # explains; hard case: blind-bad-SDIT_C-s1-6)
         sure, _ = realign(ctx, expected, t_m, y_sure,
-                           np.column_stack([*pose, X[:, 2:], D]), first_al)
+                           [*pose, X[:, 2:], D], first_al)
         log.debug("timing without the unsure samples: offset %.4f +- %.2f ms vs %.4f s, "
                   "clock %.1f +- %.1f vs %.1f ppm", sure.offset_s, sure.offset_std_s * 1e3,
                   al.offset_s, sure.clock_ppm, sure.clock_std_ppm, al.clock_ppm)
@@ -208,7 +208,7 @@ def settle_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np
                 break
             prev = other
             other, jump_o = realign(ctx, expected, t_m, y,
-                                     np.column_stack([*pose, Xa[:, 2:], cols]), prev)
+                                     [*pose, Xa[:, 2:], cols], prev)
             if abs(other.offset_s - prev.offset_s) < 1e-3:
                 break
         if cols is None:
@@ -249,7 +249,8 @@ SURE_OFFSET_S = 0.01
 
 
 def realign(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.ndarray,
-             extra: np.ndarray, first: Alignment, rounds: int = 6, margin: float = 10.0
+             extra: np.ndarray | list[np.ndarray], first: Alignment, rounds: int = 6,
+             margin: float = 10.0
              ) -> tuple[Alignment, SetupStep | None]:
     """The timing searched afresh with the columns ``extra``, seeded with ``first``.
     A step of the set-up during the recording (a mount slip) is taken out of the

@@ -71,7 +71,7 @@ def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: n
         key, grid = eff.timing_parameter
         rest = model_columns(ctx, lib, expected, [g for g in findings if g is not f])[:, 2:]
         fits: dict[float, Alignment] = {}
-        model = TrialModel(ctx, expected, np.column_stack([*pose, rest]))
+        model = TrialModel(ctx, expected, [*pose, rest])
 
         def trial(c: float) -> float:
             c = float(c)
@@ -168,13 +168,13 @@ def shape_scan(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.nd
         eff = by[f.effect]
         if not eff.shape_holds_timing:
             continue
-        rest = generic_columns(ctx, expected, np.column_stack(
-            [*pose, model_columns(ctx, lib, expected, [g for g in findings if g is not f])[:, 2:]]))
+        rest = generic_columns(ctx, expected, [
+            *pose, model_columns(ctx, lib, expected, [g for g in findings if g is not f])[:, 2:]])
 
         def model() -> np.ndarray:  # every column, with the findings as they are now
-            return generic_columns(ctx, expected, np.column_stack([
+            return generic_columns(ctx, expected, [
                 *pose, model_columns(ctx, lib, expected, findings)[:, 2:],
-                shape_columns(ctx, lib, findings)]))
+                shape_columns(ctx, lib, findings)])
 
         cur = taken or al
         for _ in range(rounds):

@@ -6,15 +6,16 @@ named, and a recording of another feed is refused with one line and nothing writ
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
-
-
-from pathlib import Path
-
 from browser import CHROMIUM, check_page, open_in_chromium, pdf_pages
 from conftest import run  # noqa: E402
+
+# one worker takes the module: its recordings and their analysis (a minute and a half)
+# are made once, not once per worker (scripts/test.sh runs pytest --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("analyse")
 
 
 @pytest.mark.slow
