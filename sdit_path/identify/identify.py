@@ -164,7 +164,7 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
             p_nom = kin.forward(q[sel])
             d = np.linalg.norm(p_nom - pivot, axis=1)
             u = (p_nom - pivot) / d[:, None]
-            if cache is not None:
+            if cache is not None and not cache.get(REMADE):
                 cache[key] = (J, d, u)
         yy = y[sel] - (d - cfg.ballbar.bar_length_mm) * 1e3 if trace is not None else y[sel]
         N = _nuisance_columns(u)
@@ -367,6 +367,14 @@ def identification_model(plans: list[PlanFiles], options: ModelOptions
     return build_model(plans[0].config.machine, travel, options), travel
 
 
+#: the sensitivities kept between Gauss-Newton steps, every experiment's together; beyond
+#: this they are made again at each step (the same numbers, a few seconds more: five
+#: 5-minute layers at 1 kHz hold 350 MB of them)
+KEPT_SENSITIVITIES_BYTES = 128 << 20
+#: the key of an experiment's cache that says its sensitivities are made again
+REMADE = "sensitivities made again"
+
+
 def first_gram(experiment: tuple[PlanFiles, str, Trace], model: ErrorModel,
                extra: np.ndarray | None = None) -> tuple[Gram, dict]:
     """An experiment's normal equations as :func:`identify` first makes them, and the
@@ -404,6 +412,13 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
         if gram.A.shape != (len(model.parameters),) * 2:
             raise ValueError("identify: a prepared gram of another model")
     caches = [prepared[k][1] if k in prepared else {} for k in range(len(experiments))]
+    rows = sum(len(plan.trajectory(program).t_s) for plan, program, _ in experiments)
+    if rows * len(model.parameters) * 8 > KEPT_SENSITIVITIES_BYTES:
+        for cache in caches:
+            for key in [k for k in cache if isinstance(k, tuple) and len(k) == 4
+                        and all(isinstance(v, int) for v in k)]:
+                del cache[key]
+            cache[REMADE] = True
     each = _mapper(jobs, len(experiments))
     grams = each(lambda k: prepared[k][0] if k in prepared else
                  experiment_gram(*experiments[k], model, extra=extra[k], cache=caches[k]))

@@ -64,8 +64,8 @@ def fitted_beside(basis: np.ndarray | None):
 
 
 #: what one effect's :func:`memo` keeps at most (24 lagged axis rates of a 5-minute
-#: program at 1 kHz are 170 MB; of an hour-long one, 2 GB)
-MEMO_BYTES = 48 << 20
+#: program at 1 kHz are 170 MB, of an hour-long one 2 GB; 16 MB keeps the last two)
+MEMO_BYTES = 16 << 20
 
 
 def memo(cache: dict, ctx: Context, value: float, make, digits: int = 9):
