@@ -94,9 +94,10 @@ def _every(trace: Trace, k: int) -> Trace:
 #: afterwards, reads every sample)
 DIAGNOSIS = DiagnosisOptions(max_rate_hz=500.0, max_fit_samples=30_000)
 
-#: what matching or diagnosing one recording adds to the process that does it, per
-#: second of its program (a 1 kHz trajectory: its context, the alignment's columns, the
-#: selection's candidates; the default sample's layers took 2.4 to 2.7 kB a sample)
+#: what matching or diagnosing one recording takes beside the main process, per second
+#: of its program (a 1 kHz trajectory: its context, the alignment's columns, the
+#: selection's candidates; the default sample's layers took 1.4 to 1.9 MB a second, and
+#: the main process gathers the results and the first geometry meanwhile)
 WORKER_MB_PER_S = 2.8
 
 def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],

@@ -187,3 +187,14 @@ def test_sampling_a_tall_matrix_block_by_block_is_the_same_arithmetic():
     want = X[i] * (1 - f) + X[np.minimum(i + 1, len(t) - 1)] * f
     assert np.array_equal(sample_at(t, X, tau), want)
     assert np.array_equal(sample_at(t, X[:, 2], tau), want[:, 2])
+
+
+def test_workers_are_started_as_memory_allows():
+    from sdit_path.parallel import jobs_within, resident_mb
+
+    here = resident_mb()
+    assert here > 0
+    assert jobs_within(None, 1e9, 4) == 4  # no bound
+    assert jobs_within(here + 1000, 400, 4) == 2  # two fit beside this process
+    assert jobs_within(here + 100, 400, 4) == 1  # one at least
+    assert jobs_within(here + 1e6, 400, 3) == 3  # never more than asked
