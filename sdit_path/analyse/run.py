@@ -100,6 +100,7 @@ DIAGNOSIS = DiagnosisOptions(max_rate_hz=500.0, max_fit_samples=30_000)
 #: the main process gathers the results and the first geometry meanwhile)
 WORKER_MB_PER_S = 2.8
 
+
 def analyse(plan: PlanFiles, recordings: list[tuple[str, str | None, Trace]],
             options: ModelOptions, step=lambda msg: None, note=lambda msg: None,
             jobs: int = 1,

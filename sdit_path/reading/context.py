@@ -18,9 +18,9 @@ from .written import written_deviation_um
 
 
 #: what a context's cache of derived arrays may hold (a sweep of a mode's frequencies
-#: over 40,000 samples is 92 MB and is kept only until the next array; a reversal's
-#: onsets of a 5-minute program at 1 kHz are 4 MB): on the default sample's layers,
-#: 128 MB took 0.1 GB more at the peak of a diagnosis and saved an eighth of its time)
+#: over 40,000 samples is 92 MB, kept only until the next array comes; a reversal's
+#: onsets of a 5-minute program at 1 kHz are 4 MB): 128 MB took 0.15 GB more at the peak
+#: of a diagnosis of the default sample's layer D and saved a tenth of its time
 CACHE_BYTES = 48 << 20
 
 
@@ -36,8 +36,8 @@ def _nbytes(value) -> int:
 
 class ArrayCache(OrderedDict):
     """Arrays derived from a context, kept by the stages that read them: once they hold
-    more than ``limit_bytes`` together, the least recently used go (the newest stays
-    whatever its size).  A value is the same whether kept or made again, so what is let
+    more than ``limit_bytes`` together, any larger than half of it go first, then the
+    least recently used (the newest stays whatever its size).  A value is the same whether kept or made again, so what is let
     go changes the time, never a result."""
 
     def __init__(self, limit_bytes: int = CACHE_BYTES):
@@ -54,8 +54,12 @@ class ArrayCache(OrderedDict):
         self.move_to_end(key)
         sizes = {k: _nbytes(v) for k, v in self.items()}
         total = sum(sizes.values())
-        for k in list(self):
-            if total <= self.limit_bytes or k == key:
+        # an array larger than half the bound goes first (kept only until the next one
+        # comes), then the least recently used: the small ones read at every step stay
+        order = sorted((k for k in self if k != key),
+                       key=lambda k: sizes[k] <= self.limit_bytes // 2)
+        for k in order:
+            if total <= self.limit_bytes:
                 break
             total -= sizes[k]
             super().__delitem__(k)
