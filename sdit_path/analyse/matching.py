@@ -14,17 +14,7 @@ from ..diagnose.recording import AlignedRecording, align_by_runs, align_recordin
 from ..diagnose.runs import match_dwells, program_runs, still_stretches
 from ..errors import ConfigError, RecordingError
 from ..plan.files import PlanFiles
-from ..reading.context import Context, build_context
 from ..reading.trace import Trace, block_means, standstill_floor
-
-
-def program_context(plan: PlanFiles, program: str, contexts: dict | None) -> Context:
-    """The program's context, built once per analysis."""
-    if contexts is None:
-        return build_context(plan, program)
-    if program not in contexts:
-        contexts[program] = build_context(plan, program)
-    return contexts[program]
 
 
 _WINDOW_S = 0.5
@@ -135,8 +125,8 @@ TIMED_S = 0.02
 DWELL_COST_MARGIN = 20.0
 
 
-def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
-          contexts: dict | None = None) -> tuple[AlignedRecording, str]:
+def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None
+          ) -> tuple[AlignedRecording, str]:
     """The recording aligned to its program, and how the program was chosen.  Refuses
     (one line) a recording that fits no program of the plan, or fits another one better
     than the program named.
@@ -149,7 +139,7 @@ def match(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
     programs for whose planner is modelled (LinuxCNC); the one that leaves the least
     is kept when it leaves clearly less than the plan's timing."""
     try:
-        rec, how = _match_planned(plan, trace, label, named, contexts)
+        rec, how = _match_planned(plan, trace, label, named)
         refusal = None
     except RecordingError as exc:
         rec, how, refusal = None, "", exc
@@ -280,8 +270,8 @@ def _dwell_candidates(plan: PlanFiles, trace: Trace) -> list[str]:
                   key=costs.get)[:2]
 
 
-def _match_planned(plan: PlanFiles, trace: Trace, label: str, named: str | None = None,
-                   contexts: dict | None = None) -> tuple[AlignedRecording, str]:
+def _match_planned(plan: PlanFiles, trace: Trace, label: str, named: str | None = None
+                   ) -> tuple[AlignedRecording, str]:
     """:func:`match` with the plan's timing alone."""
     fits = plausible_programs(plan, trace)
     by_duration = [p for p, why in fits if not why]
@@ -326,8 +316,7 @@ def _match_planned(plan: PlanFiles, trace: Trace, label: str, named: str | None 
     results, refusals = {}, {}
     for prog in candidates:
         try:
-            results[prog] = align_recording(plan, prog, trace, label,
-                                            program_context(plan, prog, contexts))
+            results[prog] = align_recording(plan, prog, trace, label)
         except RecordingError as exc:
             refusals[prog] = str(exc).removeprefix(f"{label}: ")
     if named:

@@ -30,9 +30,9 @@ from ..identify.identify import ExtraGroup, first_gram, identification_model, id
 from ..identify.results import Identification
 from ..parallel import each, jobs_within
 from ..plan.files import PlanFiles
-from ..reading.context import Context
+from ..reading.context import Context, build_context
 from ..reading.trace import Trace
-from .matching import match, program_context
+from .matching import match
 from .results import Analysed, AnalysisResult
 
 
@@ -150,7 +150,7 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
     # (every 5th sample: this estimate only feeds the diagnosis, the final one uses all;
     # with generic shapes of what any recording may hold - lags, a drift, reversal
     # steps - as nuisances, so that it does not take them for geometry and hide them)
-    generic = [dynamic_columns(program_context(plan, rec.program, None)) for _, _, rec, _ in first]
+    generic = [dynamic_columns(build_context(plan, rec.program)) for _, _, rec, _ in first]
     geo0 = identify([(plan, rec.program, _every(rec.trace, 5)) for _, _, rec, _ in first], options,
                     extra=generic, jobs=jobs)
     del generic
@@ -161,8 +161,7 @@ def _analyse(plan, recordings, options, step, note, jobs, draw):
 
     def diagnosed(k):
         label, how, rec, trace = first[k]
-        plan.let_go(keep=rec.program)
-        ctx = program_context(plan, rec.program, None)
+        ctx = build_context(plan, rec.program)
         d = diagnose(plan, rec.program, trace, model0, DIAGNOSIS,
                      progress=note if jobs <= 1 else None, ctx=ctx, alignment=rec.alignment)
         # the effect columns on the trajectory grid: made where the context's caches are

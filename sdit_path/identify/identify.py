@@ -157,15 +157,16 @@ def experiment_gram(plan: PlanFiles, program: str, trace: Trace | None, model: E
     for start in range(0, len(rows), chunk):
         sel = rows[start:start + chunk]
         key = (start, len(sel), int(sel[0]), int(sel[-1])) if len(sel) else None
-        if cache is not None and key in cache:
-            J, d, u = cache[key]  # the nominal poses do not move between Gauss-Newton steps
+        if cache is not None and (SENSITIVITIES, key) in cache:
+            # the nominal poses do not move between Gauss-Newton steps
+            J, d, u = cache[(SENSITIVITIES, key)]
         else:
             J = sensitivities(kin, model, q[sel], pivot) * scale
             p_nom = kin.forward(q[sel])
             d = np.linalg.norm(p_nom - pivot, axis=1)
             u = (p_nom - pivot) / d[:, None]
             if cache is not None and not cache.get(REMADE):
-                cache[key] = (J, d, u)
+                cache[(SENSITIVITIES, key)] = (J, d, u)
         yy = y[sel] - (d - cfg.ballbar.bar_length_mm) * 1e3 if trace is not None else y[sel]
         N = _nuisance_columns(u)
         if at is not None and trace is not None:
@@ -371,8 +372,9 @@ def identification_model(plans: list[PlanFiles], options: ModelOptions
 #: this they are made again at each step (the same numbers, a few seconds more: five
 #: 5-minute layers at 1 kHz hold 350 MB of them)
 KEPT_SENSITIVITIES_BYTES = 128 << 20
-#: the key of an experiment's cache that says its sensitivities are made again
-REMADE = "sensitivities made again"
+#: an experiment's cache: its sensitivities per chunk are kept under (SENSITIVITIES,
+#: chunk), and REMADE says they are made again at each step instead
+SENSITIVITIES, REMADE = "sensitivities", "sensitivities made again"
 
 
 def first_gram(experiment: tuple[PlanFiles, str, Trace], model: ErrorModel,
@@ -415,8 +417,7 @@ def identify(experiments: list[tuple[PlanFiles, str, Trace]], options: ModelOpti
     rows = sum(len(plan.trajectory(program).t_s) for plan, program, _ in experiments)
     if rows * len(model.parameters) * 8 > KEPT_SENSITIVITIES_BYTES:
         for cache in caches:
-            for key in [k for k in cache if isinstance(k, tuple) and len(k) == 4
-                        and all(isinstance(v, int) for v in k)]:
+            for key in [k for k in cache if isinstance(k, tuple) and k[0] == SENSITIVITIES]:
                 del cache[key]
             cache[REMADE] = True
     each = _mapper(jobs, len(experiments))

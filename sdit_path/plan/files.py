@@ -102,14 +102,13 @@ class PlanFiles:
         the program as written (:mod:`.control_motion`)."""
         return replace(self, motion=control, _read={})
 
-    def let_go(self, keep: str | None = None) -> None:
-        """Forget the trajectories read from their files, all but ``keep``'s (each is
-        read again when asked, in a fraction of a second; a hundred MB of them lay in
-        memory through a whole analysis); computed ones (a control's motion, a re-timing:
-        minutes each) stay."""
+    def let_go(self) -> None:
+        """Forget the trajectories read from their files (each is read again when asked,
+        in a fraction of a second; a hundred MB of them lay in memory through a whole
+        analysis); computed ones (a control's motion, a re-timing: minutes each) stay."""
         for program in list(self._read):
-            if program != keep and self.motion_of(program) is None \
-                    and self.retiming(program) is None and self.directory is not None:
+            if self.motion_of(program) is None and self.retiming(program) is None \
+                    and self.directory is not None:
                 del self._read[program]
 
     def trajectory(self, program: str) -> Samples:
