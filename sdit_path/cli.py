@@ -243,6 +243,28 @@ def _conditions(operator, instrument, temperatures, date) -> list[tuple[str, str
     return out
 
 
+def _once_each(items: list[tuple[str, str | None]]) -> None:
+    """Each recording file given once and each program named once, refused before any
+    is read (found only after matching, a duplicate cost minutes of it)."""
+    from pathlib import Path
+
+    from .errors import ConfigError
+
+    files: dict[Path, str] = {}
+    named: dict[str, str] = {}
+    for path, prog in items:
+        key, given = Path(path).resolve(), path if prog is None else f"{prog}={path}"
+        if key in files:
+            raise ConfigError("--measured", f"{path}: given twice ({files[key]}, then {given}); "
+                                            f"give each recording once")
+        files[key] = given
+        if prog is not None:
+            if prog in named:
+                raise ConfigError("--measured", f"{path}: a second recording of {prog} (the "
+                                                f"first: {named[prog]}); give each program once")
+            named[prog] = path
+
+
 def _plan_sha256(plan_dir) -> str:
     import hashlib
     from pathlib import Path
@@ -430,6 +452,7 @@ def analyse_command(plan_dir, measured, out_dir, force, linear_order, rotary_ord
                                                 f"plan ({', '.join(plan.program_names)})")
             else:
                 items.append((m, None))
+        _once_each(items)
         protect = (Path(plan_dir) / "plan.json", *(p for p, _ in items))
         check_output(out_dir, force, "analyse", protect)
         n = len(items)

@@ -46,20 +46,22 @@ def test_self_check_names_the_hidden_effect_and_nothing_on_clean_traces(plan_f15
 
 def test_analyse_blind_recovers_the_geometry_names_the_effect_and_refuses_strangers(tmp_path):
     """``analyse_blind`` on its first seeded case (golden_small, random geometry, a
-    hidden servo lag in both programs, refusals of recordings of another feed, another
-    plan, or named as another program): every determined combination within three of its
-    standard uncertainties, the effect named in each recording (a contour smoothing,
+    hidden servo lag in both programs, refusals of recordings of another plan with the same
+    program names, given unnamed and named): every determined combination within three of
+    its standard uncertainties, the effect named in each recording (a contour smoothing,
     which one feed cannot tell from a lag, named with it counts), start and clock within
-    their bounds, every stranger refused with one line."""
+    their bounds, every stranger refused with one line.  (A recording of another feed and
+    one named as another program: tests/identify/test_analyse.py.)"""
     out = tmp_path / "ablind.json"
     run("analyse_blind.py", "--cases", "1", "--seed", "1", "--json", str(out), "--work",
-        str(tmp_path / "work"), timeout=1500)
+        str(tmp_path / "work"), "--refusals", "plan", timeout=1500)
     (case,) = json.loads(out.read_text())
     assert case["within_3"] == case["combinations"] > 0
     for r in case["recordings"]:
         assert r["right"] or r["in_ambiguous"], r
         assert r["offset_ok"] and r["clock_ok"], r
-    assert case["refusals"] and all(x["refused"] for x in case["refusals"]), case["refusals"]
+    assert len(case["refusals"]) == 2, case["refusals"]
+    assert all(x["refused"] for x in case["refusals"]), case["refusals"]
 
 
 def test_hostile_campaign_ends_every_case_in_one_line_or_a_result():

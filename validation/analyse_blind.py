@@ -21,7 +21,10 @@ blends, ramps, slow-downs) and analysed with ``--controller linuxcnc`` (issue 47
 
     python validation/analyse_blind.py [--plan-config tests/data/golden_small.toml] [--cases 10]
                                   [--seed 1] [--json OUT] [--work DIR] [--no-refusals]
-                                  [--control linuxcnc]
+                                  [--refusals feed,plan,name] [--control linuxcnc]
+
+``--refusals`` picks the kinds of stranger tried (another feed, another plan, a
+recording named as another program; all by default).
 """
 
 from __future__ import annotations
@@ -79,9 +82,10 @@ def effect_text(h) -> str:
 
 
 def refusals(k: int, rng, d: Path, plan_dir: Path, others: dict[str, Path], files: list[Path],
-             setup, hidden) -> list[dict]:
-    """The case's machine recorded with the wrong plans, and a recording named as another
-    program: each given to ``analyse`` against the case's plan must be refused."""
+             setup, hidden, named_wrong: bool = True) -> list[dict]:
+    """The case's machine recorded with the wrong plans, and (``named_wrong``) a recording
+    named as another program: each given to ``analyse`` against the case's plan must be
+    refused."""
     plan = load_plan(plan_dir)
     tries = []
     for what, other in others.items():
@@ -99,7 +103,7 @@ def refusals(k: int, rng, d: Path, plan_dir: Path, others: dict[str, Path], file
             continue
         tries += [(what + " unnamed", str(f)), (what + f" named {prog}", f"{prog}={f}")]
     own = files[0]
-    wrong = plan.program_names[1] if len(plan.program_names) > 1 else None
+    wrong = plan.program_names[1] if len(plan.program_names) > 1 and named_wrong else None
     if wrong:
         tries.append(("own recording named " + wrong, f"{wrong}={own}"))
     out = []
@@ -133,7 +137,8 @@ def visible_rms(plan, program: str, hidden) -> float:
 
 
 def run_case(k: int, seed: int, plan_dir: Path, work: Path,
-             others: dict[str, Path] | None = None, control: str | None = None) -> dict:
+             others: dict[str, Path] | None = None, control: str | None = None,
+             named_wrong: bool = True) -> dict:
     rng = np.random.default_rng([seed, k, 16])
     plan = load_plan(plan_dir)
     d = work / f"case{k}"
@@ -199,8 +204,9 @@ def run_case(k: int, seed: int, plan_dir: Path, work: Path,
             "clock_err_ppm": al["clock_ppm"] - t["clock_ppm"],
             "clock_ok": abs(al["clock_ppm"] - t["clock_ppm"]) <= max(5.0, 4 * (al["clock_std_ppm"] or 0)),
             "offset_ok": abs(al["offset_s"] - t["offset_s"]) <= 0.05})
-    if others:
-        out["refusals"] = refusals(k, rng, d, plan_dir, others, files, setup, hidden)
+    if others or named_wrong:
+        out["refusals"] = refusals(k, rng, d, plan_dir, others or {}, files, setup, hidden,
+                                   named_wrong)
     return out
 
 
@@ -211,7 +217,8 @@ def _tilted(m) -> str:
         f"{v if v == 0 else min(v + 5.0, 80.0):.1f}" for v in els) + "]"
 
 
-def other_plans(config: Path, work: Path) -> dict[str, Path]:
+def other_plans(config: Path, work: Path, kinds: tuple[str, ...] = ("feed", "plan")
+                ) -> dict[str, Path]:
     """The plan's configuration at 0.6 times its feed, and with its upper tracks raised
     by 5 degrees and one node more per track (the same program names), planned once."""
     import re
@@ -225,6 +232,8 @@ def other_plans(config: Path, work: Path) -> dict[str, Path]:
                              re.sub(r"track_elevations_deg\s*=\s*\[([^\]]*)\]", _tilted, text))}
     out = {}
     for what, cfg_text in variants.items():
+        if what.split()[-1] not in kinds:
+            continue
         if cfg_text == text:
             sys.exit(f"{config}: cannot make the {what} (no such setting in the file)")
         stem = what.replace(" ", "_")
@@ -274,6 +283,9 @@ def main() -> None:
     ap.add_argument("--work")
     ap.add_argument("--no-refusals", action="store_true",
                     help="skip the recordings of other plans and wrongly named programs")
+    ap.add_argument("--refusals", default="feed,plan,name",
+                    help="the strangers tried: another feed, another plan, a recording named "
+                         "as another program (comma-separated; default all)")
     ap.add_argument("--control", choices=["linuxcnc"], default=None,
                     help="record the control's own motion and analyse with --controller")
     ap.add_argument("--rescore", type=Path, default=None,
@@ -292,10 +304,13 @@ def main() -> None:
     if not config.is_file():  # a bundled sample's name
         from sdit_path.config import sample_path
         config = sample_path(a.plan_config if a.plan_config.endswith(".toml") else a.plan_config + ".toml")
-    others = {} if a.no_refusals else other_plans(config, work)
+    kinds = () if a.no_refusals else tuple(x.strip() for x in a.refusals.split(",") if x.strip())
+    if set(kinds) - {"feed", "plan", "name"}:
+        sys.exit(f"--refusals: expected feed, plan or name, got {a.refusals!r}")
+    others = other_plans(config, work, kinds) if {"feed", "plan"} & set(kinds) else {}
     results = []
     for k in range(a.cases):
-        res = run_case(k, a.seed, plan_dir, work, others, a.control)
+        res = run_case(k, a.seed, plan_dir, work, others, a.control, "name" in kinds)
         results.append(res)
         if "error" in res:
             print(f"case {k:3d} {res.get('effect')}: ERROR {res['error']}", flush=True)

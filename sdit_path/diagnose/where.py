@@ -43,7 +43,7 @@ def locate(ctx: Context, idx: np.ndarray, tau: np.ndarray, signal: np.ndarray,
                            for p in ("accelerate", "cruise", "decelerate", "dwell") if (ph == p).any()}
     near = np.zeros(len(idx), dtype=bool)
     for j in ctx.linear:
-        near |= ctx.since_reversal_s[idx, j] < 0.1
+        near |= ctx.since_reversal_s(idx, j) < 0.1
     out["reversal_rms_um"] = {
         "within_100ms_after_reversal": round(float(np.sqrt(np.mean(signal[near] ** 2))), 4) if near.any() else 0.0,
         "elsewhere": round(float(np.sqrt(np.mean(signal[~near] ** 2))), 4) if (~near).any() else 0.0}

@@ -82,9 +82,9 @@ class Context:
     relative to the table; ``q : (n, m)`` axis values (mm, rad); ``qdot : (n, m)``
     axis velocities; ``gain : (n, m)`` bar reading change (mm) per unit axis error (mm
     or rad); ``direction : (n, m)`` +-1 last direction of motion of each axis;
-    ``since_reversal_s : (n, m)`` time since that axis last reversed (inf before its
-    first reversal); ``position_at_reversal : (n, m)`` where it was then (NaN before);
-    ``observable``: axes whose motion the bar sees at all (an axis always moving across
+    ``reversal_index``: per axis, the samples where it reversed (``reversal_times``, their
+    times; :meth:`since_reversal_s` and :meth:`position_at_reversal` read from them what
+    a sample needs); ``observable``: axes whose motion the bar sees at all (an axis always moving across
     the bar, e.g. Y of a B-C table set-up that keeps the bar in the XZ plane, is not); ``moving : (n,)``; labels ``segment, phase : (n,)``.
     """
 
@@ -97,19 +97,14 @@ class Context:
     qdot: np.ndarray
     gain: np.ndarray
     direction: np.ndarray
-    since_reversal_s: np.ndarray
+    reversal_index: tuple
     reversal_times: tuple
-    position_at_reversal: np.ndarray
     moving: np.ndarray
     segment: np.ndarray
     phase: np.ndarray
     axis_names: tuple[str, ...]
     linear: tuple[int, ...]
     pivot_mm: np.ndarray
-    run_id: np.ndarray
-    velocity: np.ndarray
-    acceleration: np.ndarray
-    jerk: np.ndarray
     arc_mm: np.ndarray
     arc_integral: np.ndarray
     run_start_mm: np.ndarray
@@ -128,6 +123,37 @@ class Context:
     #: arrays derived from the others, kept by the stages that read them (keyed by each),
     #: within :data:`CACHE_BYTES`
     cache: ArrayCache = field(default_factory=ArrayCache)
+
+    def _last_reversal(self, idx: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """Of the samples ``idx``: whether axis j has reversed at or before each, and the
+        sample of its latest reversal (0 where it has not)."""
+        flips = self.reversal_index[j]
+        k = np.searchsorted(flips, idx, side="right") - 1
+        last = flips[np.maximum(k, 0)] if len(flips) else np.zeros(len(k), dtype=int)
+        return k >= 0, last
+
+    def since_reversal_s(self, idx: np.ndarray, j: int) -> np.ndarray:
+        """At the samples ``idx``: the time since axis j last reversed (inf before its
+        first reversal)."""
+        idx = np.asarray(idx)
+        ok, last = self._last_reversal(idx, j)
+        out = np.full(len(idx), np.inf)
+        out[ok] = self.t_s[idx[ok]] - self.t_s[last[ok]]
+        return out
+
+    def position_at_reversal(self, idx: np.ndarray, j: int) -> np.ndarray:
+        """At the samples ``idx``: axis j's value where it last reversed (NaN before its
+        first reversal)."""
+        idx = np.asarray(idx)
+        ok, last = self._last_reversal(idx, j)
+        out = np.full(len(idx), np.nan)
+        out[ok] = self.q[last[ok], j]
+        return out
+
+    def run_id(self) -> np.ndarray:
+        """``(n,)``: the number of the run of motion (a stretch between stops) each sample
+        belongs to, -1 while standing."""
+        return _run_ids(self.moving)
 
     def slow_state(self, j: int, speed: float) -> tuple[np.ndarray, np.ndarray]:
         """Whether axis j crawls (moving, slower than ``speed``) and the time since it
@@ -156,6 +182,11 @@ class Context:
     @property
     def duration_s(self) -> float:
         return float(self.t_s[-1] - self.t_s[0])
+
+
+def _run_ids(moving: np.ndarray) -> np.ndarray:
+    """Runs: maximal stretches of motion between stops, numbered from 0 (-1 standing)."""
+    return np.cumsum(np.diff(np.r_[0, moving.astype(int)]) == 1) * moving - 1
 
 
 def _crawl_start(slow: np.ndarray) -> np.ndarray:
@@ -252,22 +283,11 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     v = np.gradient(ball, t, axis=0) if len(t) > 2 else np.zeros_like(ball)
     speed = np.linalg.norm(v, axis=1)
     direction = directions(qdot, velocity_eps)
-    since = np.full((len(t), m), np.inf)
-    at_rev = np.full((len(t), m), np.nan)
-    rev_times = []
-    for j in range(m):
-        flips, last = reversals(direction[:, j])
-        rev_times.append(t[flips])
-        ok = last >= 0
-        since[ok, j] = t[ok] - t[last[ok]]
-        at_rev[ok, j] = q[last[ok], j]
+    rev_index = tuple(reversals(direction[:, j])[0] for j in range(m))
     phase = np.asarray(traj.phase, dtype=object)
     moving = (phase != "dwell") & (phase != "reposition")
-    # runs: maximal stretches of motion between stops
-    run_id = np.cumsum(np.diff(np.r_[0, moving.astype(int)]) == 1) * moving - 1
+    run_id = _run_ids(moving)
     linear = tuple(j for j in range(m) if not kin.axes[j].is_rotary)
-    acc = np.gradient(v, t, axis=0) if len(t) > 2 else np.zeros_like(v)
-    jerk = np.gradient(acc, t, axis=0) if len(t) > 2 else np.zeros_like(v)
     # arc length along each run on one increasing axis (runs spaced apart), and the
     # running integral of the position over it (for arc-length averages)
     ds = np.r_[0.0, np.linalg.norm(np.diff(ball, axis=0), axis=1)]
@@ -285,10 +305,10 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     if any(kin.axes[i].is_rotary for i in kin.workpiece):
         rot, _ = kin.table_transform(q)  # p_bed = rot p_table + trans
         u_bed = np.einsum("nij,nj->ni", rot, u)
-    return Context(t, ball, u, length, speed, q, qdot, gain, direction, since,
-                   tuple(rev_times), at_rev, moving, np.asarray(traj.segment, dtype=object), phase,
-                   tuple(kin.names), linear, pivot, run_id.astype(int), v, acc, jerk, arc,
-                   integral, arc[first], arc[last_idx][run_no], u_bed,
+    return Context(t, ball, u, length, speed, q, qdot, gain, direction, rev_index,
+                   tuple(t[f] for f in rev_index), moving,
+                   np.asarray(traj.segment, dtype=object), phase, tuple(kin.names), linear,
+                   pivot, arc, integral, arc[first], arc[last_idx][run_no], u_bed,
                    tuple(j for j in range(m) if float(np.sqrt(np.mean(gain[:, j] ** 2))) > 1e-6),
                    written_um=written_deviation_um(plan, program, ball, moving),
                    control_path=plan.motion_of(program) is not None)

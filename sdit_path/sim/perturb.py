@@ -238,8 +238,9 @@ def _axis(ctx: Context, name: str) -> int:
 def _smooth_axes(ctx: Context, q: np.ndarray, window_mm: float) -> np.ndarray:
     out = q.copy()
     h = window_mm / 2.0
-    for rid in range(int(ctx.run_id.max()) + 1):
-        sel = np.flatnonzero(ctx.run_id == rid)
+    run_id = ctx.run_id()
+    for rid in range(int(run_id.max()) + 1):
+        sel = np.flatnonzero(run_id == rid)
         if len(sel) < 3:
             continue
         s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(ctx.ball_mm[sel], axis=0), axis=1))]
@@ -327,7 +328,7 @@ def perturb(plan: PlanFiles, program: str, model: ErrorSet | None, effects: list
             q[:, j] = _play(q0[:, j], p["play_um"] * 1e-3, ctx.direction[0, j])
         elif e.name == "reversal_spike":
             j = _axis(ctx, p["axis"])
-            since, d = ctx.since_reversal_s[:, j], ctx.direction[:, j]
+            since, d = ctx.since_reversal_s(np.arange(ctx.n), j), ctx.direction[:, j]
             ok = np.isfinite(since)
             tt = np.where(ok, since, 0.0)
             tau, rise = p["tau_ms"] * 1e-3, p["rise_ms"] * 1e-3

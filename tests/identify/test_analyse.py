@@ -79,19 +79,23 @@ def _the_report_opens_prints_and_leads_with_the_results(recorded, tmp_path):
 
 
 @pytest.mark.slow
-def test_a_recording_of_another_feed_is_refused_and_nothing_is_written(perturbed, golden_plans,
-                                                                       tmp_path):
+def test_a_recording_of_another_feed_or_misnamed_is_refused_and_nothing_is_written(
+        perturbed, golden_plans, tmp_path):
     rec = tmp_path / "slow.csv"
     r = run("perturb", "--plan", str(golden_plans["slow"]), "--program", "GOLD_A", "--lead-s", "4",
             "--noise-um", "0.2", "--out", str(rec), "-q")
     assert r.returncode == 0, r.stderr
     out = tmp_path / "out"
-    for given in (str(rec), f"GOLD_A={rec}"):
+    # and GOLD_A's own recording named as GOLD_B
+    own = perturbed["files"][0]
+    for given, prog in ((str(rec), "GOLD_A"), (f"GOLD_A={rec}", "GOLD_A"),
+                        (f"GOLD_B={own}", "GOLD_B")):
         r = run("analyse", "--plan", str(perturbed["plan"]), "--measured", given, "--out", str(out))
         assert r.returncode != 0
         lines = r.stderr.strip().splitlines()
         assert len(lines[-1]) < 700 and "Traceback" not in r.stderr, r.stderr
-        assert str(rec) in lines[-1] and ("GOLD_A" in lines[-1] or "no program" in lines[-1]), lines
+        path = given.partition("=")[2] or given
+        assert path in lines[-1] and (prog in lines[-1] or "no program" in lines[-1]), lines
         assert not out.exists()
 
 
@@ -103,7 +107,9 @@ def test_bad_requests_get_one_line_and_touch_nothing(perturbed, tmp_path):
     cases = ((["--measured", f"FOO={rec}", "--out", str(tmp_path / "o")], "'FOO' is not a program"),
              (["--measured", rec, "--out", plan], "which this run reads"),
              (["--measured", rec, "--measured", f"GOLD_A={rec}", "--out", str(tmp_path / "o")],
-              "a second recording of GOLD_A"))
+              "given twice"),
+             (["--measured", f"GOLD_A={rec}", "--measured", f"GOLD_A={recorded['files'][1]}",
+               "--out", str(tmp_path / "o")], "a second recording of GOLD_A"))
     for args, expected in cases:
         r = run("analyse", "--plan", plan, *args, "-q")
         assert r.returncode != 0 and "Traceback" not in r.stderr, r.stderr

@@ -90,7 +90,7 @@ class Backlash(Effect):
         i = s.idx
         x = ctx.q[i, j]
         d = ctx.direction[i, j]
-        x_rev = ctx.position_at_reversal[i, j]
+        x_rev = ctx.position_at_reversal(i, j)
         b = width_um * 1e-3
         moved = np.abs(x - x_rev)
         dev = np.where(np.isfinite(x_rev) & (moved < b), x_rev - x + d * b / 2.0, -d * b / 2.0)
