@@ -59,7 +59,8 @@ CLOCK_LIMIT_PPM = 200.0
 
 
 def generic_columns(ctx: Context, expected_um: np.ndarray,
-                    extra: np.ndarray | list[np.ndarray] | None = None) -> np.ndarray:
+                    extra: np.ndarray | list[np.ndarray] | None = None,
+                    consume: bool = False) -> np.ndarray:
     """``(n, m)`` on the trajectory grid: expected reading (if it varies), constant,
     bar direction, a smoothed motion indicator, -v^2/(2L), time, the reading of the
     axes' accelerations and a step at each reversal of every linear axis.
@@ -69,18 +70,24 @@ def generic_columns(ctx: Context, expected_um: np.ndarray,
     tau^2 * a / 2 beyond the pure delay) and the path's curvature (v^2 / (2 L)); on a
     slow program whose reading hardly moves (a 5-axis test at 10 mm/s: 0.4 um/s) that
     remainder, a tenth of a micrometre, otherwise pulls the clock to the end of its
-    range.  ``extra``: more columns, or blocks of them (stacked here once)."""
+    range.  ``extra``: more columns, or blocks of them (stacked here once); with
+    ``consume``, a list of blocks nothing else holds, emptied here and each block let go
+    once copied (tall ones: the blocks and the model are not held whole at once)."""
     base, spread = _generic_base(ctx)
     blocks, spreads = [base], [spread]
     if np.ptp(expected_um) > 1e-3:
         blocks.insert(0, np.asarray(expected_um, float)[:, None])
         spreads.insert(0, np.ptp(blocks[0], axis=0))
-    for part in (extra if isinstance(extra, list) else [] if extra is None else [extra]):
+    parts = extra if isinstance(extra, list) else [] if extra is None else [extra]
+    for part in parts:
         part = np.asarray(part, float).reshape(ctx.n, -1)
         blocks.append(part)
         # every column's spread at once (row-major: column by column reads the whole
         # matrix once per column)
         spreads.append(np.ptp(part, axis=0))
+    part = None
+    if consume and isinstance(extra, list):
+        extra.clear()
     keep = np.concatenate(spreads) > 1e-9
     keep[0] = True
     # the kept columns written into one matrix (tall: no second copy to drop columns
@@ -88,7 +95,8 @@ def generic_columns(ctx: Context, expected_um: np.ndarray,
     # dropped (the products with it, and so every alignment, are the same to the bit)
     X = np.empty((ctx.n, int(keep.sum())), order="C" if keep.all() else "F")
     at = col = 0
-    for block in blocks:
+    for b in range(len(blocks)):
+        block, blocks[b] = blocks[b], None  # (let go once copied, where consumed)
         kept = keep[at:at + block.shape[1]]
         at += block.shape[1]
         if kept.all():
@@ -478,8 +486,8 @@ def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     ``search``, only the seeds are polished.  With ``noise_um`` (the recording's
     noise), a searched result that leaves more than ``LOCAL_SCAN_EXPLAINED`` times it
     is checked against its neighbourhood (:func:`local_scan`)."""
-    if callable(extra):  # made here and let go once in X (tall: see alignment_columns)
-        X = generic_columns(ctx, expected_um, extra()) if model is None else model
+    if callable(extra):  # made here and let go as X is filled (tall: see alignment_blocks)
+        X = generic_columns(ctx, expected_um, extra(), consume=True) if model is None else model
         extra = True
     else:
         X = generic_columns(ctx, expected_um, extra) if model is None else model

@@ -26,7 +26,7 @@ from .align import Alignment, align, generic_columns, refine, timing_is_weak
 from .ambiguity import judge_confidence, pair_ambiguity
 from .columns import expected_reading, model_columns, needed_blocks
 from .effects import JUDGED_AGAIN, Effect, GeometryBeyond, library
-from .effects.generic import alignment_columns, pose_blocks
+from .effects.generic import alignment_blocks, pose_blocks
 from .fitting import noise_estimate
 from .heldout import split_recording
 from .options import Options
@@ -91,15 +91,15 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     # they are read and let go there)
     if alignment is None:
         ok = np.isfinite(y)
-        al = align(ctx, expected, t_m, y, extra=lambda: alignment_columns(plan, ctx),
+        al = align(ctx, expected, t_m, y, extra=lambda: alignment_blocks(plan, ctx),
                    noise_um=noise_estimate(y[ok], t_m[ok]))
     elif model is not None:
         # the caller aligned without the geometry; the reading's geometric part holds
         # timing of its own, and a clock read without it can be off enough for the first
         # pass to name a play and a stick-slip for a servo mismatch: polished with it
         # (hard case: analyse-s2-1)
-        al = refine(ctx, generic_columns(ctx, expected, alignment_columns(plan, ctx)), t_m, y,
-                    alignment.offset_s, alignment.clock_ppm)
+        al = refine(ctx, generic_columns(ctx, expected, alignment_blocks(plan, ctx), consume=True),
+                    t_m, y, alignment.offset_s, alignment.clock_ppm)
     else:
         al = alignment
     release_freed_memory()  # (the alignment's tall columns: gone before the selection's)

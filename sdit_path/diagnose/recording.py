@@ -24,7 +24,7 @@ from ..reading.trace import Trace, block_means, standstill_floor
 from .align import Alignment, AlignmentError, align, check_span
 from ..reading.context import build_context
 from .columns import expected_reading
-from .effects.generic import alignment_columns
+from .effects.generic import alignment_blocks, alignment_columns
 from .fitting import noise_estimate
 from .timing import widened
 from .runs import RunTiming, anchored_timing, first_timing, fit_runs, match_dwells, \
@@ -177,7 +177,7 @@ def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
     noise = noise_estimate(y[ok], t_m[ok])
     try:
         al = align(ctx, expected, t_m, y, ppm_limit=CLOCK_LIMIT_PPM,
-                   extra=lambda: alignment_columns(plan, ctx), noise_um=noise)
+                   extra=lambda: alignment_blocks(plan, ctx), noise_um=noise)
     except AlignmentError as exc:
         raise RecordingError(f"{label}: {exc}") from None
     tau = al.program_time(t_m)

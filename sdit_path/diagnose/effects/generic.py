@@ -30,6 +30,12 @@ def pose_blocks(plan: PlanFiles, ctx: Context) -> list[np.ndarray]:
     return out
 
 
+def alignment_blocks(plan: PlanFiles, ctx: Context) -> list[np.ndarray]:
+    """:func:`alignment_columns` as its blocks, for ``generic_columns(..., consume=True)``
+    to copy and let go one by one."""
+    return pose_blocks(plan, ctx) + _dynamic_blocks(ctx)
+
+
 def alignment_columns(plan: PlanFiles, ctx: Context, pose_only: bool = False) -> np.ndarray:
     """Columns the alignment fits besides its generic ones, so that what every trace
     may hold cannot pull the timing: geometry as functions of the pose (squareness,
