@@ -84,8 +84,9 @@ class Context:
     or rad); ``direction : (n, m)`` +-1 last direction of motion of each axis;
     ``reversal_index``: per axis, the samples where it reversed (``reversal_times``, their
     times; :meth:`since_reversal_s` and :meth:`position_at_reversal` read from them what
-    a sample needs); ``observable``: axes whose motion the bar sees at all (an axis always moving across
-    the bar, e.g. Y of a B-C table set-up that keeps the bar in the XZ plane, is not); ``moving : (n,)``; labels ``segment, phase : (n,)``.
+    a sample needs); ``observable``: axes whose motion the bar sees at all (an axis
+    always moving across the bar, e.g. Y of a B-C table set-up that keeps the bar in the
+    XZ plane, is not); ``moving : (n,)``; labels ``segment, phase : (n,)``.
     """
 
     t_s: np.ndarray

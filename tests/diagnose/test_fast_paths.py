@@ -198,3 +198,27 @@ def test_workers_are_started_as_memory_allows():
     assert jobs_within(here + 1000, 400, 4) == 2  # two fit beside this process
     assert jobs_within(here + 100, 400, 4) == 1  # one at least
     assert jobs_within(here + 1e6, 400, 3) == 3  # never more than asked
+
+
+@pytest.mark.slow
+def test_the_reversal_state_read_at_samples_is_what_every_sample_held(recorded):
+    """The time since each axis' last reversal and its position there, read from the
+    reversal indices at the samples asked for, are the arrays the context held for every
+    sample (inf and NaN before the first reversal)."""
+    from sdit_path.reading.context import reversals
+
+    _, ctx, *_ = recorded
+    assert sum(len(r) for r in ctx.reversal_index) >= 3
+    every = np.arange(ctx.n)
+    some = np.random.default_rng(4).integers(0, ctx.n, 300)
+    for j in range(ctx.q.shape[1]):
+        _, last = reversals(ctx.direction[:, j])
+        ok = last >= 0
+        since = np.full(ctx.n, np.inf)
+        since[ok] = ctx.t_s[ok] - ctx.t_s[last[ok]]
+        at = np.full(ctx.n, np.nan)
+        at[ok] = ctx.q[last[ok], j]
+        assert np.array_equal(ctx.since_reversal_s(every, j), since)
+        assert np.array_equal(ctx.position_at_reversal(every, j), at, equal_nan=True)
+        assert np.array_equal(ctx.since_reversal_s(some, j), since[some])
+        assert len(ctx.reversal_times[j]) == len(ctx.reversal_index[j])
