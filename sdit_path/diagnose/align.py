@@ -85,7 +85,7 @@ def generic_columns(ctx: Context, expected_um: np.ndarray,
         # every column's spread at once (row-major: column by column reads the whole
         # matrix once per column)
         spreads.append(np.ptp(part, axis=0))
-    part = None
+    part = None  # (the loop's last block: held here, it could not be let go below)
     if consume and isinstance(extra, list):
         extra.clear()
     keep = np.concatenate(spreads) > 1e-9

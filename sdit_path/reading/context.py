@@ -37,8 +37,8 @@ def _nbytes(value) -> int:
 class ArrayCache(OrderedDict):
     """Arrays derived from a context, kept by the stages that read them: once they hold
     more than ``limit_bytes`` together, any larger than half of it go first, then the
-    least recently used (the newest stays whatever its size).  A value is the same whether kept or made again, so what is let
-    go changes the time, never a result."""
+    least recently used (the newest stays whatever its size).  A value is the same
+    whether kept or made again, so what is let go changes the time, never a result."""
 
     def __init__(self, limit_bytes: int = CACHE_BYTES):
         super().__init__()
@@ -82,9 +82,9 @@ class Context:
     relative to the table; ``q : (n, m)`` axis values (mm, rad); ``qdot : (n, m)``
     axis velocities; ``gain : (n, m)`` bar reading change (mm) per unit axis error (mm
     or rad); ``direction : (n, m)`` +-1 last direction of motion of each axis;
-    ``reversal_index``: per axis, the samples where it reversed (``reversal_times``, their
-    times; :meth:`since_reversal_s` and :meth:`position_at_reversal` read from them what
-    a sample needs); ``observable``: axes whose motion the bar sees at all (an axis
+    ``reversal_index``: per axis, the samples where it reversed (:attr:`reversal_times`,
+    their times; :meth:`since_reversal_s` and :meth:`position_at_reversal` read from them
+    what a sample needs); ``observable``: axes whose motion the bar sees at all (an axis
     always moving across the bar, e.g. Y of a B-C table set-up that keeps the bar in the
     XZ plane, is not); ``moving : (n,)``; labels ``segment, phase : (n,)``.
     """
@@ -99,7 +99,6 @@ class Context:
     gain: np.ndarray
     direction: np.ndarray
     reversal_index: tuple
-    reversal_times: tuple
     moving: np.ndarray
     segment: np.ndarray
     phase: np.ndarray
@@ -124,6 +123,11 @@ class Context:
     #: arrays derived from the others, kept by the stages that read them (keyed by each),
     #: within :data:`CACHE_BYTES`
     cache: ArrayCache = field(default_factory=ArrayCache)
+
+    @property
+    def reversal_times(self) -> tuple[np.ndarray, ...]:
+        """Per axis, the program times at which it reversed."""
+        return tuple(self.t_s[f] for f in self.reversal_index)
 
     def _last_reversal(self, idx: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray]:
         """Of the samples ``idx``: whether axis j has reversed at or before each, and the
@@ -306,8 +310,7 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     if any(kin.axes[i].is_rotary for i in kin.workpiece):
         rot, _ = kin.table_transform(q)  # p_bed = rot p_table + trans
         u_bed = np.einsum("nij,nj->ni", rot, u)
-    return Context(t, ball, u, length, speed, q, qdot, gain, direction, rev_index,
-                   tuple(t[f] for f in rev_index), moving,
+    return Context(t, ball, u, length, speed, q, qdot, gain, direction, rev_index, moving,
                    np.asarray(traj.segment, dtype=object), phase, tuple(kin.names), linear,
                    pivot, arc, integral, arc[first], arc[last_idx][run_no], u_bed,
                    tuple(j for j in range(m) if float(np.sqrt(np.mean(gain[:, j] ** 2))) > 1e-6),

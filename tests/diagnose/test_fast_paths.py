@@ -221,4 +221,5 @@ def test_the_reversal_state_read_at_samples_is_what_every_sample_held(recorded):
         assert np.array_equal(ctx.since_reversal_s(every, j), since)
         assert np.array_equal(ctx.position_at_reversal(every, j), at, equal_nan=True)
         assert np.array_equal(ctx.since_reversal_s(some, j), since[some])
-        assert len(ctx.reversal_times[j]) == len(ctx.reversal_index[j])
+        flips = ctx.reversal_index[j]  # where the direction changes, and only there
+        assert np.array_equal(flips, np.flatnonzero(np.diff(ctx.direction[:, j])) + 1)

@@ -35,7 +35,7 @@ def pose_blocks(plan: PlanFiles, ctx: Context) -> list[np.ndarray]:
 
 
 def alignment_blocks(plan: PlanFiles, ctx: Context) -> list[np.ndarray]:
-    """:func:`alignment_columns` as its blocks, for ``generic_columns(..., consume=True)``
+    """The blocks of :func:`alignment_columns`, for ``generic_columns(..., consume=True)``
     to copy and let go one by one."""
     return pose_blocks(plan, ctx) + _dynamic_blocks(ctx)
 
@@ -47,10 +47,7 @@ def alignment_columns(plan: PlanFiles, ctx: Context, pose_only: bool = False) ->
     different servo lags, a drift, and reversal-locked steps and pulses (backlash,
     lateral play, friction spikes).  (Stacked once from their blocks: tall, 65 columns
     on every trajectory sample.)"""
-    blocks = pose_blocks(plan, ctx)
-    if not pose_only:
-        blocks += _dynamic_blocks(ctx)
-    return np.column_stack(blocks)
+    return np.column_stack(pose_blocks(plan, ctx) if pose_only else alignment_blocks(plan, ctx))
 
 
 def dynamic_columns(ctx: Context) -> np.ndarray:
