@@ -306,6 +306,23 @@ def _timing_std(JJ: np.ndarray, r: np.ndarray) -> tuple[float, float]:
         return bounds
 
 
+def _rows_read(y: np.ndarray, max_samples: int) -> np.ndarray:
+    """The samples of ``y`` :func:`refine` reads: the finite ones, at most
+    ``max_samples`` of them drawn at random (seeded: the same every time)."""
+    valid = np.flatnonzero(np.isfinite(y))
+    if len(valid) > max_samples:
+        valid = np.sort(np.random.default_rng(0).choice(valid, max_samples, replace=False))
+    return valid
+
+
+def coefficients_at(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
+                    al: Alignment, max_samples: int = 120_000) -> np.ndarray:
+    """The linear model ``X``'s coefficients at the timing ``al`` on the samples
+    :func:`refine` reads (with the same ``max_samples``): the fit it ended with."""
+    valid = _rows_read(y, max_samples)
+    return _fit_rms(X, ctx.t_s, t_m[valid], y[valid], al.offset_s, al.clock_ppm * 1e-6)[3]
+
+
 def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s: float,
            ppm: float, ppm_limit: float = CLOCK_LIMIT_PPM, iterations: int = 8,
            max_samples: int = 120_000, max_step_s: float = 0.05, check: bool = True,
@@ -315,9 +332,7 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
     ``ppm_limit`` (a rate that ends at that edge gets the uncertainty of the whole range).
     It stops when a step would move the offset and the rate by less than ``tolerance``
     of their standard uncertainties (see :func:`_negligible`)."""
-    valid = np.flatnonzero(np.isfinite(y))
-    if len(valid) > max_samples:
-        valid = np.sort(np.random.default_rng(0).choice(valid, max_samples, replace=False))
+    valid = _rows_read(y, max_samples)
     tm, yy = t_m[valid], y[valid]
     t = ctx.t_s
     T = t[-1]

@@ -41,28 +41,23 @@ log = logging.getLogger(__name__)
 def explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
             y: np.ndarray, al: Alignment, opt: Options, step, finalize: bool = True,
             mimic_library: list[Effect] | None = None, geometry: GeometryBeyond | None = None,
-            pinned: dict | None = None) -> Explanation:
+            profiled: list[FindingDraft] | None = None) -> Explanation:
     """The recording ``(t_m, y)`` at the timing ``al`` explained by the effects of
     ``lib``: selected on its fitted stretches and checked on the held-out ones; without
-    ``finalize`` only the findings as selected (no read-out); ``pinned``: effect ->
-    nonlinear parameters kept as given (profiled with the timing)."""
+    ``finalize`` only the findings as selected (no read-out); ``profiled``: findings
+    whose timing parameter was profiled with the timing: kept at the value found there,
+    and what the profile leaves open taken into the uncertainties."""
+    by = {e.name: e for e in lib}
+    pinned = {f.effect: {by[f.effect].timing_parameter[0]:
+                         f.nonlinear[by[f.effect].timing_parameter[0]]}
+              for f in profiled or [] if f.effect in by and by[f.effect].timing_parameter
+              and by[f.effect].timing_parameter[0] in f.nonlinear}
     split = split_recording(ctx, expected, t_m, y, al, opt)
     selection = Selection(ctx, lib, split, opt, step, pinned).run()
     if not finalize:
         return Explanation("", al, {}, selection.findings, {}, split.noise_um, {}, {})
-    return read_out(ctx, lib, split, selection, al, opt, mimic_library, geometry)
-
-
-def _profiled(lib: list[Effect], findings: list[FindingDraft]) -> dict:
-    """Effect -> its timing parameter as profiled with the timing: a lag profiled so
-    keeps that value (searched again on the residual at a fixed timing, it drifts to what
-    makes up for the timing: a mismatch's common lag runs to the end of its grid and
-    leaves microns at every dwell)."""
-    by = {e.name: e for e in lib}
-    return {f.effect: {by[f.effect].timing_parameter[0]:
-                       f.nonlinear[by[f.effect].timing_parameter[0]]}
-            for f in findings if by[f.effect].timing_parameter
-            and by[f.effect].timing_parameter[0] in f.nonlinear}
+    opened = {f.effect: dict(f.profile_std) for f in profiled or [] if f.profile_std}
+    return read_out(ctx, lib, split, selection, al, opt, mimic_library, geometry, opened)
 
 
 def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None = None,
@@ -124,16 +119,20 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
 
     by = {e.name: e for e in lib}
 
-    def again_with(names, al, jump, pinned) -> Explanation:
+    def again_with(names, al, jump, profiled) -> Explanation:
         # a step of the set-up is no effect: taken out before the effects are judged
-        # again, so that none of them (lateral play, backlash) is named for it
+        # again, so that none of them (lateral play, backlash) is named for it.  A lag
+        # profiled with the timing keeps that value (searched again on the residual at
+        # a fixed timing, it drifts to what makes up for the timing: a mismatch's common
+        # lag runs to the end of its grid and leaves microns at every dwell)
         y_fit = y if jump is None else y - jump.reading_um(ctx, al, t_m)
         return explain(ctx, [e for e in lib if e.name in names], expected, t_m, y_fit, al,
-                       options, step, mimic_library=lib, geometry=geometry, pinned=pinned)
+                       options, step, mimic_library=lib, geometry=geometry,
+                       profiled=profiled)
 
     # some effects are judged again at the settled timing whatever the first pass found
     # (the bar length: a position-locked effect may have stood in for it at the first)
-    result = again_with(names | JUDGED_AGAIN, al, jump, _profiled(lib, first.findings))
+    result = again_with(names | JUDGED_AGAIN, al, jump, first.findings)
     kept = {f.effect for f in result.findings}
     dropped = {f.effect for f in first.findings} - kept
     if kept != names and any(by[f.effect].timing_parameter for f in result.findings):
@@ -142,7 +141,7 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
         log.debug("settling again with %s", sorted(kept))
         al, jump, _ = settle_timing(ctx, lib, expected, t_m, y, pose, result.findings, first_al,
                               partners=False)
-        result = again_with(kept, al, jump, _profiled(lib, result.findings))
+        result = again_with(kept, al, jump, result.findings)
     elif dropped:
         # the first pass named what the settled timing no longer needs: those findings
         # may have stood in for a wrong first timing and bent the settled one, as far as
@@ -157,7 +156,7 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
                   sorted(dropped), al.offset_s, again.offset_s, al.clock_ppm, again.clock_ppm)
         if consistent(again, al) and again.rms_um <= al.rms_um:
             al, jump = again, jump2
-            result = again_with(kept, al, jump, _profiled(lib, result.findings))
+            result = again_with(kept, al, jump, result.findings)
     elif jump is None and (moved := reshaped(lib, first.findings, result.findings)):
         # the same findings with other shapes at the settled timing than at the first
         # one, which the settled timing was polished with: the shapes of the first timing
@@ -173,7 +172,7 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
         if (again.rms_um < al.rms_um and abs(again.offset_s - al.offset_s) <= RESHAPED_S
                 and abs(again.clock_ppm - al.clock_ppm) <= RESHAPED_PPM):
             al = again
-            result = again_with(kept, al, jump, _profiled(lib, result.findings))
+            result = again_with(kept, al, jump, result.findings)
     earlier = {f.effect: f for f in first.findings}
     for f in result.findings:  # the competition was the whole library in the first pass
         if f.effect in earlier:

@@ -29,12 +29,16 @@ def _rms(v: np.ndarray) -> float:
 
 def read_out(ctx: Context, lib: list[Effect], split: Split, selection: Selection,
              al: Alignment, opt: Options, mimic_library: list[Effect] | None = None,
-             geometry: GeometryBeyond | None = None) -> Explanation:
+             geometry: GeometryBeyond | None = None, opened: dict | None = None
+             ) -> Explanation:
     """The explanation of the recording at the timing ``al`` by what ``selection``
     chose (run on ``split``): parameters and contributions from the final fit on every
     sample; ``mimic_library``: the effects tried as mimics (default ``lib``);
     ``geometry``: the smooth geometry beyond the library the geometric findings are
-    checked against (None: not checked)."""
+    checked against (None: not checked); ``opened``: effect -> parameter -> the
+    standard uncertainty its timing parameter's profile with the timing leaves it
+    (the timing parameter's own uncertainty is at least that, the others' take it in
+    in quadrature)."""
     tr, ho, idx, tau, gap, held = split.tr, split.ho, split.idx, split.tau, split.gap, split.held
     S_tr, S_ho, y_tr, y_ho = split.S_tr, split.S_ho, split.y_tr, split.y_ho
     chosen, findings, ranked = selection.chosen, selection.findings, selection.ranked
@@ -83,6 +87,14 @@ def read_out(ctx: Context, lib: list[Effect], split: Split, selection: Selection
             f.uncertainty.update(std)
             f.undetermined += lost
             f.parameters = {k: v for k, v in f.parameters.items() if k not in lost}
+        # the profile with the timing (a common lag, the start and the lag differences
+        # moving together) reads what one timing cannot: what it leaves open counts
+        timing_key = eff.timing_parameter[0] if eff.timing_parameter else None
+        for k, v in (opened or {}).get(f.effect, {}).items():
+            if k not in f.uncertainty or k not in f.parameters:
+                continue
+            f.uncertainty[k] = (max(f.uncertainty[k], v) if k == timing_key
+                                else math.hypot(f.uncertainty[k], v))
         f.contribution_rms_um = _rms(contrib)
         f.where = locate(ctx, series_idx, tau[allsel], contrib)
         # mimics: which other effects reproduce this finding's own signal

@@ -47,9 +47,13 @@ class FindingDraft:
     uncertainty: dict = field(default_factory=dict)
     #: parameters the recording does not determine apart from the others' (not reported)
     undetermined: list = field(default_factory=list)
+    #: parameter -> the standard uncertainty its timing parameter's profile with the
+    #: timing leaves it (:func:`.timing_profiles.profile_timing`; kept for the read-out)
+    profile_std: dict = field(default_factory=dict)
 
     def freeze(self) -> "Finding":
-        return Finding(**{f.name: _frozen(getattr(self, f.name)) for f in fields(self)})
+        return Finding(**{f.name: _frozen(getattr(self, f.name)) for f in fields(self)
+                          if f.name != "profile_std"})
 
 
 @dataclass(frozen=True, slots=True)

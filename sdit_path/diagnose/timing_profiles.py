@@ -10,7 +10,7 @@ import math
 import numpy as np
 
 from ..reading.context import Context, sample_at
-from .align import Alignment, SetupStep, generic_columns, lsq, refine
+from .align import Alignment, SetupStep, coefficients_at, generic_columns, lsq, refine
 from .columns import TrialModel, model_columns, shape_columns
 from .effects import Effect, Samples, projection_gain
 
@@ -24,19 +24,26 @@ PROFILE_SAMPLES = 30_000
 REFINE_SAMPLES = 120_000
 
 
-def alike_spread(a: Alignment, b: Alignment, n_fit: int) -> tuple[float, float] | None:
+def alike_scale(a: Alignment, b: Alignment, n_fit: int) -> float | None:
     """Two fits of the same reading at different timings: where the worse is worse by
     ``dchi2`` <= 9 (in units of the better's residual variance over ``n_fit`` samples),
-    the standard uncertainty (offset s, clock ppm) their distance implies on a quadratic
-    profile, ``d / sqrt(dchi2)`` (``d`` where the two fit alike); None when they do not
-    fit alike."""
+    ``sqrt(dchi2)`` (at least 1): a quantity that differs by ``d`` between them has the
+    standard uncertainty ``d / scale`` on a quadratic profile (``d`` where the two fit
+    alike); None when they do not fit alike."""
     better, worse = (a, b) if a.rms_um <= b.rms_um else (b, a)
     dchi2 = n_fit * (worse.rms_um ** 2 - better.rms_um ** 2) / max(better.rms_um ** 2, 1e-30)
     if dchi2 > 9.0:
         return None
-    scale = math.sqrt(max(dchi2, 1.0))
-    return (abs(worse.offset_s - better.offset_s) / scale,
-            abs(worse.clock_ppm - better.clock_ppm) / scale)
+    return math.sqrt(max(dchi2, 1.0))
+
+
+def alike_spread(a: Alignment, b: Alignment, n_fit: int) -> tuple[float, float] | None:
+    """The standard uncertainty (offset s, clock ppm) the distance between two fits
+    that fit alike implies (:func:`alike_scale`); None when they do not."""
+    scale = alike_scale(a, b, n_fit)
+    if scale is None:
+        return None
+    return (abs(a.offset_s - b.offset_s) / scale, abs(a.clock_ppm - b.clock_ppm) / scale)
 
 
 def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarray,
@@ -55,9 +62,16 @@ def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: n
     The profile also says how far the timing is known once the parameter is free: a
     value whose fit is worse by ``dchi2`` (in units of the residual's variance over the
     samples polished) with its timing ``d`` away implies a standard uncertainty of
-    ``d / sqrt(dchi2)`` on a quadratic profile (``d`` where the two fit alike).  True
-    when a parameter changed, and the largest such offset (s) and clock (ppm)
-    uncertainty over the values within 3 standard uncertainties."""
+    ``d / sqrt(dchi2)`` on a quadratic profile (``d`` where the two fit alike).  So do
+    the parameter itself and the finding's other parameters, fitted with it at each
+    value: along a flat profile a lag difference moves with the common lag and the
+    start together, by more than its uncertainty at one timing says (hard case: the
+    one-hour recording of the memory benchmark, where a change in the last digit of a
+    product picked another common lag and moved a lag difference by two of its stated
+    uncertainties); the largest of those is kept on the finding
+    (``profile_std``) for the read-out.  True when a parameter changed, and the
+    largest offset (s) and clock (ppm) uncertainty over the values within 3 standard
+    uncertainties."""
     changed = False
     widen = [0.0, 0.0]
     allg = Samples(np.arange(ctx.n), ctx.t_s)
@@ -69,16 +83,25 @@ def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: n
         if eff.timing_parameter is None:
             continue
         key, grid = eff.timing_parameter
+        f.profile_std = {}
         rest = model_columns(ctx, lib, expected, [g for g in findings if g is not f])[:, 2:]
         fits: dict[float, Alignment] = {}
+        found: dict[float, dict] = {}  # the finding's parameters fitted at each value
         model = TrialModel(ctx, expected, [*pose, rest])
 
         def trial(c: float) -> float:
             c = float(c)
             if c not in fits:
-                X = model.with_columns(eff.columns(ctx, allg, {**f.nonlinear, key: c})[0])
+                nl = {**f.nonlinear, key: c}
+                cols, labels = eff.columns(ctx, allg, nl)
+                X = model.with_columns(cols)
                 fits[c] = refine(ctx, X, t_m, yc, al.offset_s, al.clock_ppm, iterations=4,
                                  max_samples=PROFILE_SAMPLES, check=False)
+                if cols.shape[1] and (np.ptp(cols, axis=0) > 1e-9).all():
+                    # (every column of the finding kept: they are the model's last)
+                    beta = coefficients_at(ctx, X, t_m, yc, fits[c], PROFILE_SAMPLES)
+                    with np.errstate(invalid="ignore", divide="ignore"):
+                        found[c] = eff.parameters(beta[-cols.shape[1]:], labels, nl, ctx)
             return fits[c].rms_um
 
         coarse = list(grid[::2]) + ([grid[-1]] if len(grid) % 2 == 0 else [])
@@ -104,8 +127,14 @@ def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: n
                   ", ".join(f"{c:g}: {v:.5f} at {fits[c].offset_s:.4f} s" for c, v in sorted(rms.items())))
         if max(rms.values()) - rms[best] <= 1e-4 * rms[best]:
             # a flat profile (the finding explains next to nothing at this timing)
-            # says nothing about the parameter: a tie must not move the start
+            # says nothing about the parameter: a tie must not move the start; what it
+            # leaves open is read around the value kept
+            kept = f.nonlinear.get(key)
+            if isinstance(kept, float) and math.isfinite(kept):
+                trial(kept)
+                f.profile_std = _opened(key, float(kept), fits, found, n_fit)
             continue
+        f.profile_std = _opened(key, best, fits, found, n_fit)
         b = fits[best]
         for c, a in fits.items():
             spread = alike_spread(a, b, n_fit)
@@ -115,6 +144,27 @@ def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: n
             f.nonlinear[key] = best
             changed = True
     return changed, (widen[0], widen[1])
+
+
+def _opened(key: str, at: float, fits: dict[float, Alignment], found: dict[float, dict],
+            n_fit: int) -> dict[str, float]:
+    """Parameter -> the standard uncertainty a profile of ``key`` leaves it around the
+    value ``at``: the largest ``d / sqrt(dchi2)`` over the values that fit alike
+    (:func:`alike_scale`), ``d`` how far the parameter (``key`` itself, or one of the
+    finding's ``found`` there) lies from its value at ``at``."""
+    out = {key: 0.0}
+    ref = found.get(at, {})
+    for c, a in fits.items():
+        scale = alike_scale(a, fits[at], n_fit)
+        if scale is None:
+            continue
+        out[key] = max(out[key], abs(c - at) / scale)
+        for name, v in found.get(c, {}).items():
+            w = ref.get(name)
+            if name != key and isinstance(v, float) and isinstance(w, float) \
+                    and math.isfinite(v - w):
+                out[name] = max(out.get(name, 0.0), abs(v - w) / scale)
+    return out
 
 
 def _parabola_vertex(values: dict[float, float]) -> float | None:
