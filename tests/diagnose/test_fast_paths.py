@@ -198,3 +198,47 @@ def test_workers_are_started_as_memory_allows():
     assert jobs_within(here + 1000, 400, 4) == 2  # two fit beside this process
     assert jobs_within(here + 100, 400, 4) == 1  # one at least
     assert jobs_within(here + 1e6, 400, 3) == 3  # never more than asked
+
+
+@pytest.mark.slow
+def test_a_long_programs_model_made_where_read_is_the_model_held_whole(recorded, monkeypatch):
+    """A program longer than TALL_ROWS has its pose blocks made at the rows read
+    (diagnose/tall.py): forced on GOLD_A, every row is the row of the model held whole,
+    a product with it the same to rounding, the coarse search's column scales and block
+    means the same to rounding, and the alignment the same to far below its
+    uncertainty."""
+    from sdit_path.diagnose.effects import generic
+    from sdit_path.diagnose.fitting import noise_estimate
+    from sdit_path.diagnose.tall import Interpolated, RowModel
+
+    plan, ctx, expected, X, t_m, y = recorded
+    whole = generic_columns(ctx, expected, generic.alignment_blocks(plan, ctx), consume=True)
+    monkeypatch.setattr(generic, "TALL_ROWS", 0)
+    blocks = generic.alignment_blocks(plan, ctx)
+    assert any(isinstance(b, Interpolated) for b in blocks)
+    pose = [b for b in blocks if isinstance(b, Interpolated)]
+    for b in pose:
+        assert np.array_equal(b.spread(), np.ptp(b.full(), axis=0))
+    tall = generic_columns(ctx, expected, blocks, consume=True)
+    assert isinstance(tall, RowModel) and tall.shape == whole.shape
+    rows = np.r_[0, 1, 17, np.random.default_rng(1).integers(0, ctx.n, 500), ctx.n - 1]
+    assert np.array_equal(tall[rows], whole[rows])
+    assert np.array_equal(tall[ctx.n - 1], whole[ctx.n - 1])
+    # its generic part is what the coarse search of a long program reads
+    assert np.array_equal(tall.generic_part()[rows], generic_columns(ctx, expected)[rows])
+    beta = np.random.default_rng(2).normal(size=whole.shape[1])
+    assert np.allclose(tall @ beta, whole @ beta, rtol=0, atol=1e-12 * np.abs(whole).max())
+    unit = align_mod.column_rms(whole)
+    assert np.allclose(tall.column_rms(), unit, rtol=1e-12)
+    per, nb = 100, ctx.n // 100
+    means = np.column_stack([align_mod._block_mean(whole[:, a] / unit[a], np.ones(ctx.n),
+                                                   np.arange(nb + 1) * per)[0]
+                             for a in range(whole.shape[1])])
+    assert np.allclose(tall.block_means(per, nb, unit), means, rtol=0, atol=1e-10)
+    ok = np.isfinite(y)
+    noise = noise_estimate(y[ok], t_m[ok])
+    a = align_mod.align(ctx, expected, t_m, y, model=whole, extra=True, noise_um=noise)
+    b = align_mod.align(ctx, expected, t_m, y,
+                        extra=lambda: generic.alignment_blocks(plan, ctx), noise_um=noise)
+    assert abs(a.offset_s - b.offset_s) < 1e-3 * a.offset_std_s
+    assert abs(a.clock_ppm - b.clock_ppm) < 1e-3 * a.clock_std_ppm
