@@ -25,6 +25,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from ..errors import RecordingError
 from ..reading.context import Context, sample_at
+from .tall import RowModel, is_tall
 
 
 class AlignmentError(RecordingError):
@@ -79,7 +80,12 @@ def generic_columns(ctx: Context, expected_um: np.ndarray,
         blocks.insert(0, np.asarray(expected_um, float)[:, None])
         spreads.insert(0, np.ptp(blocks[0], axis=0))
     parts = extra if isinstance(extra, list) else [] if extra is None else [extra]
+    generic = len(blocks)
     for part in parts:
+        if is_tall(part):  # made where read (a long program's geometry)
+            blocks.append(part)
+            spreads.append(part.spread())
+            continue
         part = np.asarray(part, float).reshape(ctx.n, -1)
         blocks.append(part)
         # every column's spread at once (row-major: column by column reads the whole
@@ -90,6 +96,8 @@ def generic_columns(ctx: Context, expected_um: np.ndarray,
         extra.clear()
     keep = np.concatenate(spreads) > 1e-9
     keep[0] = True
+    if any(is_tall(b) for b in blocks):
+        return RowModel(blocks, keep, generic)  # type: ignore[return-value]
     # the kept columns written into one matrix (tall: no second copy to drop columns
     # from), laid out as numpy lays out the columns it picks: by column where some are
     # dropped (the products with it, and so every alignment, are the same to the bit)
@@ -190,9 +198,13 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     # columns at unit RMS: the small ridge that keeps the solves regular must not
     # penalise a column for its units (it biases the search by tenths of a second)
     # (the scaled matrix and its squares would be two more copies of a tall one)
-    unit = np.maximum(column_rms(X), 1e-12)
-    Xb = np.column_stack([_block_mean(X[:, a] / unit[a], np.ones(ctx.n), edges_p)[0]
-                          for a in range(X.shape[1])])
+    if isinstance(X, RowModel):  # (made a block of rows at a time)
+        unit = np.maximum(X.column_rms(), 1e-12)
+        Xb = X.block_means(per, nb, unit)
+    else:
+        unit = np.maximum(column_rms(X), 1e-12)
+        Xb = np.column_stack([_block_mean(X[:, a] / unit[a], np.ones(ctx.n), edges_p)[0]
+                              for a in range(X.shape[1])])
     x0, xT = X[0] / unit, X[-1] / unit
     valid = np.isfinite(y)
     yv = np.where(valid, y, 0.0)

@@ -61,7 +61,7 @@ class TrialModel:
             return self.X
         fixed = self.fixed if isinstance(self.fixed, list) else [self.fixed]
         X = generic_columns(self.ctx, self.expected, [*fixed, cols])
-        if varies:
+        if varies and isinstance(X, np.ndarray):  # (a model made where read is made anew)
             self.X, self.width = X, cols.shape[1]
         return X
 

@@ -56,8 +56,9 @@ def explain(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.ndarr
     selection = Selection(ctx, lib, split, opt, step, pinned).run()
     if not finalize:
         return Explanation("", al, {}, selection.findings, {}, split.noise_um, {}, {})
-    opened = {f.effect: dict(f.profile_std) for f in profiled or [] if f.profile_std}
-    return read_out(ctx, lib, split, selection, al, opt, mimic_library, geometry, opened)
+    opened = {f.effect: f.profile for f in profiled or [] if f.profile is not None}
+    return read_out(ctx, lib, split, selection, al, opt, mimic_library, geometry, opened,
+                    expected)
 
 
 def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None = None,

@@ -27,18 +27,86 @@ def _rms(v: np.ndarray) -> float:
     return float(np.sqrt(np.mean(v * v))) if len(v) else 0.0
 
 
+def _profile_open(f, key: str, prof) -> None:
+    """``f``'s uncertainties widened by what the profile of its timing parameter
+    ``key`` with the timing (a common lag, the start and the lag differences moving
+    together) leaves open: a timing (one fit) cannot read that."""
+    if key in f.uncertainty and key in f.parameters:
+        f.uncertainty[key] = max(f.uncertainty[key], prof.std.get(key, 0.0))
+        open_key = f.uncertainty[key]
+    else:
+        open_key = prof.std.get(key, 0.0)
+    for k in f.uncertainty:
+        if k == key or k not in f.parameters:
+            continue
+        along = max(prof.std.get(k, 0.0), abs(prof.slope.get(k, 0.0)) * open_key)
+        f.uncertainty[k] = math.hypot(f.uncertainty[k], along)
+
+
+#: the steps (s, ppm) at most at which the findings are fitted again with the timing
+#: moved: a slope there times the timing's stated uncertainty is what that carries
+TIMING_STEP_S, TIMING_STEP_PPM = 0.002, 5.0
+
+
+def _timing_spill(ctx: Context, chosen: list, slices: list, expected: np.ndarray,
+                  tau: np.ndarray, gap: np.ndarray, al: Alignment) -> list[dict]:
+    """Per finding of ``chosen`` (its columns at ``slices`` of the final fit), parameter
+    -> the variance the recording's timing carries into it: the findings fitted again
+    on the same samples (program times ``tau``, readings less the expected one ``gap``)
+    with the start, then the clock, moved each way by their standard uncertainty (at
+    most :data:`TIMING_STEP_S`, :data:`TIMING_STEP_PPM`: a slope, times the
+    uncertainty), the change squared.  Fitted at one timing, a parameter's covariance is
+    what it has at that timing; on a slow program the start is known to milliseconds
+    and a lag difference moves with it by several of those uncertainties (hard case:
+    the memory benchmark's one-hour recording, lag Z-X 0.0027 ms per ms of start)."""
+    out: list[dict] = [{} for _ in chosen]
+    if not chosen:
+        return out
+    t0, T = float(ctx.t_s[0]), float(ctx.t_s[-1])
+    t_m = al.measured_time(tau)
+    reading = gap + np.interp(tau, ctx.t_s, expected)
+    for std, most, move in ((al.offset_std_s, TIMING_STEP_S, (1.0, 0.0)),
+                            (al.clock_std_ppm, TIMING_STEP_PPM, (0.0, 1.0))):
+        if not (math.isfinite(std) and std > 0.0):
+            continue
+        h = min(std, most)
+        found = []
+        for sign in (1.0, -1.0):
+            off = al.offset_s + sign * h * move[0]
+            ppm = al.clock_ppm + sign * h * move[1]
+            tt = np.clip((t_m - off) / (1.0 + ppm * 1e-6), t0, T)
+            ii = np.clip(np.rint((tt - t0) / (T - t0) * (ctx.n - 1)).astype(int), 0, ctx.n - 1)
+            S = Samples(ii, tt)
+            A = np.column_stack([eff.columns(ctx, S, nl)[0] for eff, nl, _ in chosen])
+            beta = solve(A, reading - np.interp(tt, ctx.t_s, expected))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                found.append([eff.parameters(beta[sl], labels, nl, ctx)
+                              for (eff, nl, labels), sl in zip(chosen, slices)])
+        for k, (up, down) in enumerate(zip(*found)):
+            for name, a in up.items():
+                b = down.get(name)
+                if isinstance(a, float) and isinstance(b, float) and math.isfinite(a - b):
+                    change = abs(a - b) / (2.0 * h) * std
+                    out[k][name] = out[k].get(name, 0.0) + change * change
+    return out
+
+
 def read_out(ctx: Context, lib: list[Effect], split: Split, selection: Selection,
              al: Alignment, opt: Options, mimic_library: list[Effect] | None = None,
-             geometry: GeometryBeyond | None = None, opened: dict | None = None
-             ) -> Explanation:
+             geometry: GeometryBeyond | None = None, opened: dict | None = None,
+             expected: np.ndarray | None = None) -> Explanation:
     """The explanation of the recording at the timing ``al`` by what ``selection``
     chose (run on ``split``): parameters and contributions from the final fit on every
     sample; ``mimic_library``: the effects tried as mimics (default ``lib``);
     ``geometry``: the smooth geometry beyond the library the geometric findings are
-    checked against (None: not checked); ``opened``: effect -> parameter -> the
-    standard uncertainty its timing parameter's profile with the timing leaves it
-    (the timing parameter's own uncertainty is at least that, the others' take it in
-    in quadrature)."""
+    checked against (None: not checked); ``opened``: effect -> what its timing
+    parameter's profile with the timing leaves open (:class:`.results.ProfileOpen`:
+    the timing parameter's uncertainty is at least what the profile says, and the
+    finding's other parameters take in, in quadrature, the larger of what they move by
+    along the profile and their slope along it times that uncertainty); ``expected``:
+    the reading the model expects on the trajectory grid (given, the findings'
+    parameters take in what the timing's uncertainty carries into them,
+    :func:`_timing_spill`)."""
     tr, ho, idx, tau, gap, held = split.tr, split.ho, split.idx, split.tau, split.gap, split.held
     S_tr, S_ho, y_tr, y_ho = split.S_tr, split.S_ho, split.y_tr, split.y_ho
     chosen, findings, ranked = selection.chosen, selection.findings, selection.ranked
@@ -70,7 +138,9 @@ def read_out(ctx: Context, lib: list[Effect], split: Split, selection: Selection
     var_all = residual_variance(resid, tau[allsel])
     series_idx = idx[allsel]
     contribs = {}
-    for f, (eff, nl, labels), sl in zip(findings, chosen, slices):
+    timed = (_timing_spill(ctx, chosen, slices, expected, tau[allsel], y_all, al)
+             if expected is not None else [{} for _ in chosen])
+    for f, (eff, nl, labels), sl, carried in zip(findings, chosen, slices, timed):
         contrib = blocks[slices.index(sl)] @ beta[sl]
         contribs[f.effect] = contrib
         f.parameters, f.unseen, f.uncertainty, f.undetermined = seen_parameters(
@@ -87,14 +157,12 @@ def read_out(ctx: Context, lib: list[Effect], split: Split, selection: Selection
             f.uncertainty.update(std)
             f.undetermined += lost
             f.parameters = {k: v for k, v in f.parameters.items() if k not in lost}
-        # the profile with the timing (a common lag, the start and the lag differences
-        # moving together) reads what one timing cannot: what it leaves open counts
-        timing_key = eff.timing_parameter[0] if eff.timing_parameter else None
-        for k, v in (opened or {}).get(f.effect, {}).items():
-            if k not in f.uncertainty or k not in f.parameters:
-                continue
-            f.uncertainty[k] = (max(f.uncertainty[k], v) if k == timing_key
-                                else math.hypot(f.uncertainty[k], v))
+        for k, v in carried.items():
+            if k in f.uncertainty and k in f.parameters:
+                f.uncertainty[k] = math.sqrt(f.uncertainty[k] ** 2 + v)
+        prof = (opened or {}).get(f.effect)
+        if prof is not None and eff.timing_parameter:
+            _profile_open(f, eff.timing_parameter[0], prof)
         f.contribution_rms_um = _rms(contrib)
         f.where = locate(ctx, series_idx, tau[allsel], contrib)
         # mimics: which other effects reproduce this finding's own signal

@@ -47,13 +47,25 @@ class FindingDraft:
     uncertainty: dict = field(default_factory=dict)
     #: parameters the recording does not determine apart from the others' (not reported)
     undetermined: list = field(default_factory=list)
-    #: parameter -> the standard uncertainty its timing parameter's profile with the
-    #: timing leaves it (:func:`.timing_profiles.profile_timing`; kept for the read-out)
-    profile_std: dict = field(default_factory=dict)
+    #: what its timing parameter's profile with the timing leaves open
+    #: (:func:`.timing_profiles.profile_timing`; kept for the read-out, not reported)
+    profile: "ProfileOpen | None" = None
 
     def freeze(self) -> "Finding":
         return Finding(**{f.name: _frozen(getattr(self, f.name)) for f in fields(self)
-                          if f.name != "profile_std"})
+                          if f.name != "profile"})
+
+
+@dataclass(frozen=True)
+class ProfileOpen:
+    """What a finding's timing parameter, profiled with the timing, leaves open:
+    ``std``, parameter -> the standard uncertainty the values that fit alike imply
+    (the timing parameter's own, and what the finding's others move by along them);
+    ``slope``, parameter -> how it moves per unit of the timing parameter along the
+    profile (what the timing parameter's final uncertainty carries into it)."""
+
+    std: Mapping
+    slope: Mapping
 
 
 @dataclass(frozen=True, slots=True)

@@ -13,6 +13,7 @@ from ..reading.context import Context, sample_at
 from .align import Alignment, SetupStep, coefficients_at, generic_columns, lsq, refine
 from .columns import TrialModel, model_columns, shape_columns
 from .effects import Effect, Samples, projection_gain
+from .results import ProfileOpen
 
 log = logging.getLogger(__name__)
 
@@ -68,8 +69,8 @@ def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: n
     start together, by more than its uncertainty at one timing says (hard case: the
     one-hour recording of the memory benchmark, where a change in the last digit of a
     product picked another common lag and moved a lag difference by two of its stated
-    uncertainties); the largest of those is kept on the finding
-    (``profile_std``) for the read-out.  True when a parameter changed, and the
+    uncertainties); the largest of those, and how each parameter moves along the profile,
+    are kept on the finding (``profile``) for the read-out.  True when a parameter changed, and the
     largest offset (s) and clock (ppm) uncertainty over the values within 3 standard
     uncertainties."""
     changed = False
@@ -83,7 +84,7 @@ def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: n
         if eff.timing_parameter is None:
             continue
         key, grid = eff.timing_parameter
-        f.profile_std = {}
+        f.profile = None
         rest = model_columns(ctx, lib, expected, [g for g in findings if g is not f])[:, 2:]
         fits: dict[float, Alignment] = {}
         found: dict[float, dict] = {}  # the finding's parameters fitted at each value
@@ -132,9 +133,9 @@ def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: n
             kept = f.nonlinear.get(key)
             if isinstance(kept, float) and math.isfinite(kept):
                 trial(kept)
-                f.profile_std = _opened(key, float(kept), fits, found, n_fit)
+                f.profile = _opened(key, float(kept), fits, found, n_fit)
             continue
-        f.profile_std = _opened(key, best, fits, found, n_fit)
+        f.profile = _opened(key, best, fits, found, n_fit)
         b = fits[best]
         for c, a in fits.items():
             spread = alike_spread(a, b, n_fit)
@@ -147,24 +148,38 @@ def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: n
 
 
 def _opened(key: str, at: float, fits: dict[float, Alignment], found: dict[float, dict],
-            n_fit: int) -> dict[str, float]:
-    """Parameter -> the standard uncertainty a profile of ``key`` leaves it around the
-    value ``at``: the largest ``d / sqrt(dchi2)`` over the values that fit alike
-    (:func:`alike_scale`), ``d`` how far the parameter (``key`` itself, or one of the
-    finding's ``found`` there) lies from its value at ``at``."""
-    out = {key: 0.0}
+            n_fit: int) -> ProfileOpen:
+    """What a profile of ``key`` leaves open around the value ``at``: per parameter
+    (``key`` itself, or one of the finding's ``found`` at each value) the largest
+    ``d / sqrt(dchi2)`` over the values that fit alike (:func:`alike_scale`), ``d`` how
+    far it lies from its value at ``at``; and its slope along the profile, a straight
+    line through its values at ``at``, at those that fit alike and at the nearest value
+    on either side."""
+    std = {key: 0.0}
     ref = found.get(at, {})
+    near = {at}
     for c, a in fits.items():
         scale = alike_scale(a, fits[at], n_fit)
         if scale is None:
             continue
-        out[key] = max(out[key], abs(c - at) / scale)
+        near.add(c)
+        std[key] = max(std[key], abs(c - at) / scale)
         for name, v in found.get(c, {}).items():
             w = ref.get(name)
             if name != key and isinstance(v, float) and isinstance(w, float) \
                     and math.isfinite(v - w):
-                out[name] = max(out.get(name, 0.0), abs(v - w) / scale)
-    return out
+                std[name] = max(std.get(name, 0.0), abs(v - w) / scale)
+    below, above = [c for c in fits if c < at], [c for c in fits if c > at]
+    near.update([max(below)] if below else [])
+    near.update([min(above)] if above else [])
+    slope = {}
+    for name, w in ref.items():
+        pts = [(c, found[c][name]) for c in sorted(near) if c in found
+               and isinstance(found[c].get(name), float) and math.isfinite(found[c][name])]
+        if name != key and isinstance(w, float) and len(pts) >= 2:
+            cs, vs = np.array(pts).T
+            slope[name] = float(np.polyfit(cs, vs, 1)[0])
+    return ProfileOpen(std, slope)
 
 
 def _parabola_vertex(values: dict[float, float]) -> float | None:

@@ -81,6 +81,66 @@ def test_a_profiled_lag_overwrites_the_same_matrix(recorded):
         assert np.array_equal(model.with_columns(cols), fresh), lag
 
 
+def test_a_profile_leaves_open_what_fits_alike():
+    """Along a timing parameter's profile, a value whose fit is worse by dchi2 <= 9 at
+    a distance d leaves d / sqrt(max(dchi2, 1)) open, for the parameter and for what the
+    finding fitted there; a value worse by more says nothing."""
+    from sdit_path.diagnose.align import Alignment
+    from sdit_path.diagnose.timing_profiles import _opened
+
+    n, rms = 10_000, 0.2
+
+    def fit(dchi2: float) -> Alignment:
+        return Alignment(0.0, 0.0, 1e-3, 1.0, rms * np.sqrt(1.0 + dchi2 / n))
+
+    fits = {2.0: fit(0.0), 3.0: fit(4.0), 1.0: fit(0.25), 9.0: fit(16.0)}
+    found = {2.0: {"common_lag_ms": 2.0, "lag_Y_minus_X_ms": -0.80},
+             3.0: {"common_lag_ms": 3.0, "lag_Y_minus_X_ms": -0.84},
+             1.0: {"common_lag_ms": 1.0, "lag_Y_minus_X_ms": -0.79},
+             9.0: {"common_lag_ms": 9.0, "lag_Y_minus_X_ms": -2.0}}
+    out = _opened("common_lag_ms", 2.0, fits, found, n)
+    assert out.std.keys() == {"common_lag_ms", "lag_Y_minus_X_ms"}
+    assert out.std["common_lag_ms"] == pytest.approx(1.0)  # 1.0 fits alike: 1 ms away
+    assert out.std["lag_Y_minus_X_ms"] == pytest.approx(0.02)  # 3.0: 0.04 at sqrt(4)
+    # the slope through 1, 2 and 3 (9 fits worse, and is no neighbour)
+    assert out.slope == pytest.approx({"lag_Y_minus_X_ms": np.polyfit(
+        [1.0, 2.0, 3.0], [-0.79, -0.80, -0.84], 1)[0]})
+    # read around another value, the distances and the worse fit's excess are from there
+    # (1.0 fits better than 3.0 by 3.75: 2 ms at sqrt(3.75)); 9 is its neighbour
+    there = _opened("common_lag_ms", 3.0, fits, found, n)
+    assert there.std["common_lag_ms"] == pytest.approx(2.0 / np.sqrt(3.75), rel=1e-3)
+    assert there.slope == pytest.approx({"lag_Y_minus_X_ms": np.polyfit(
+        [1.0, 2.0, 3.0, 9.0], [-0.79, -0.80, -0.84, -2.0], 1)[0]})
+
+
+@pytest.mark.slow
+def test_a_profiled_lag_keeps_what_its_profile_leaves_open(recorded):
+    """A servo mismatch's common lag profiled with the timing: the finding keeps, for
+    the read-out, what the profile leaves open of the common lag and of the lag
+    differences fitted along it (GOLD_A, X lagging 1 ms)."""
+    from sdit_path.diagnose.effects.generic import pose_blocks
+    from sdit_path.diagnose.results import FindingDraft
+    from sdit_path.diagnose.timing_profiles import profile_timing
+
+    plan, ctx, expected, X, t_m, y = recorded
+    al = refine(ctx, X, t_m, y, 3.5, -70.0)
+    eff = ServoMismatch()
+    nl = {"common_lag_ms": 3.0, "second_order_lag_Y": -1.0, "second_order_lag_Z": -1.0}
+    f = FindingDraft("servo_mismatch", eff.title, {}, nl, (),
+                     0.0, 0.0, 0.0, 0.0, 0.0)
+    profile_timing(ctx, [eff], expected, t_m, y, pose_blocks(plan, ctx), [f], al, None)
+    opened = f.profile.std
+    lags = [k for k in opened if k.startswith("lag_")]
+    assert len(lags) == 2 and "common_lag_ms" in opened, opened
+    # the lag is read within a sample (1 ms) of the truth, and a value a sample away
+    # fits about as well: at least that much of it is open
+    assert abs(f.nonlinear["common_lag_ms"] - 1.0) <= 1.0, f.nonlinear
+    assert 0.4 <= opened["common_lag_ms"] <= 3.0, opened
+    # the lag differences move along it, by far less than the 1 ms they are
+    assert all(0.0 < opened[k] < 0.05 for k in lags), opened
+    assert all(abs(f.profile.slope[k]) < 0.05 for k in lags), f.profile.slope
+
+
 def test_every_mode_at_once_reads_as_each_axis_alone(recorded):
     """A structural mode's columns, every axis filtered at once and read with one
     interpolation, against each axis filtered and interpolated on its own."""
@@ -223,3 +283,47 @@ def test_the_reversal_state_read_at_samples_is_what_every_sample_held(recorded):
         assert np.array_equal(ctx.since_reversal_s(some, j), since[some])
         flips = ctx.reversal_index[j]  # where the direction changes, and only there
         assert np.array_equal(flips, np.flatnonzero(np.diff(ctx.direction[:, j])) + 1)
+
+
+@pytest.mark.slow
+def test_a_long_programs_model_made_where_read_is_the_model_held_whole(recorded, monkeypatch):
+    """A program longer than TALL_ROWS has its pose blocks made at the rows read
+    (diagnose/tall.py): forced on GOLD_A, every row is the row of the model held whole,
+    a product with it the same to rounding, the coarse search's column scales and block
+    means the same to rounding, and the alignment the same to far below its
+    uncertainty."""
+    from sdit_path.diagnose.effects import generic
+    from sdit_path.diagnose.fitting import noise_estimate
+    from sdit_path.diagnose.tall import Interpolated, RowModel
+
+    plan, ctx, expected, X, t_m, y = recorded
+    whole = generic_columns(ctx, expected, generic.alignment_blocks(plan, ctx), consume=True)
+    monkeypatch.setattr(generic, "TALL_ROWS", 0)
+    blocks = generic.alignment_blocks(plan, ctx)
+    assert any(isinstance(b, Interpolated) for b in blocks)
+    pose = [b for b in blocks if isinstance(b, Interpolated)]
+    for b in pose:
+        assert np.array_equal(b.spread(), np.ptp(b.full(), axis=0))
+    tall = generic_columns(ctx, expected, blocks, consume=True)
+    assert isinstance(tall, RowModel) and tall.shape == whole.shape
+    rows = np.r_[0, 1, 17, np.random.default_rng(1).integers(0, ctx.n, 500), ctx.n - 1]
+    assert np.array_equal(tall[rows], whole[rows])
+    assert np.array_equal(tall[ctx.n - 1], whole[ctx.n - 1])
+    # its generic part is what the coarse search of a long program reads
+    assert np.array_equal(tall.generic_part()[rows], generic_columns(ctx, expected)[rows])
+    beta = np.random.default_rng(2).normal(size=whole.shape[1])
+    assert np.allclose(tall @ beta, whole @ beta, rtol=0, atol=1e-12 * np.abs(whole).max())
+    unit = align_mod.column_rms(whole)
+    assert np.allclose(tall.column_rms(), unit, rtol=1e-12)
+    per, nb = 100, ctx.n // 100
+    means = np.column_stack([align_mod._block_mean(whole[:, a] / unit[a], np.ones(ctx.n),
+                                                   np.arange(nb + 1) * per)[0]
+                             for a in range(whole.shape[1])])
+    assert np.allclose(tall.block_means(per, nb, unit), means, rtol=0, atol=1e-10)
+    ok = np.isfinite(y)
+    noise = noise_estimate(y[ok], t_m[ok])
+    a = align_mod.align(ctx, expected, t_m, y, model=whole, extra=True, noise_um=noise)
+    b = align_mod.align(ctx, expected, t_m, y,
+                        extra=lambda: generic.alignment_blocks(plan, ctx), noise_um=noise)
+    assert abs(a.offset_s - b.offset_s) < 1e-3 * a.offset_std_s
+    assert abs(a.clock_ppm - b.clock_ppm) < 1e-3 * a.clock_std_ppm

@@ -8,6 +8,7 @@ import numpy as np
 from ...plan.files import PlanFiles
 from ...reading.context import Context, strided
 from ..align import axis_acceleration_readings
+from ..tall import Interpolated
 from .base import Samples, linear_axes
 from .friction import ReversalSpike
 from .geometry import GeometryBeyond, ScaleMismatch, Squareness
@@ -15,16 +16,26 @@ from .play import Backlash, LateralPlay
 from .servo import ServoMismatch
 
 
-def pose_blocks(plan: PlanFiles, ctx: Context) -> list[np.ndarray]:
+#: programs longer than this many trajectory samples (17 min at 1 kHz) have their pose
+#: blocks made where they are read (:class:`~sdit_path.diagnose.tall.Interpolated`):
+#: held whole they are 42 columns on every sample, 1.1 GB an hour
+TALL_ROWS = 1_000_000
+
+
+def pose_blocks(plan: PlanFiles, ctx: Context) -> list:
     """Geometry as functions of the pose, one block per kind (squareness, scale, the
-    smooth geometry beyond the model), on the trajectory grid."""
+    smooth geometry beyond the model), on the trajectory grid: arrays, or on a program
+    longer than :data:`TALL_ROWS` the same columns made where they are read."""
     m, travel = plan.config.machine, plan.tested_travel()
     k = strided(ctx.n, ctx.ball_mm)
     sub = Samples(k, ctx.t_s[k])
     at = np.arange(ctx.n)
-    out = []
+    out: list = []
     for E in (Squareness(m, travel), ScaleMismatch(m, travel), GeometryBeyond(m, travel)):
         G = E.columns(ctx, sub, {})[0]
+        if ctx.n > TALL_ROWS:
+            out.append(Interpolated(ctx.n, k, G))
+            continue
         # written column by column into the block (stacked from a list, the columns and
         # the block were held at once: 2 GB for an hour's 36 columns of geometry)
         block = np.empty((ctx.n, G.shape[1]))
@@ -34,7 +45,7 @@ def pose_blocks(plan: PlanFiles, ctx: Context) -> list[np.ndarray]:
     return out
 
 
-def alignment_blocks(plan: PlanFiles, ctx: Context) -> list[np.ndarray]:
+def alignment_blocks(plan: PlanFiles, ctx: Context) -> list:
     """The blocks of :func:`alignment_columns`, for ``generic_columns(..., consume=True)``
     to copy and let go one by one."""
     return pose_blocks(plan, ctx) + _dynamic_blocks(ctx)
@@ -47,7 +58,8 @@ def alignment_columns(plan: PlanFiles, ctx: Context, pose_only: bool = False) ->
     different servo lags, a drift, and reversal-locked steps and pulses (backlash,
     lateral play, friction spikes).  (Stacked once from their blocks: tall, 65 columns
     on every trajectory sample.)"""
-    return np.column_stack(pose_blocks(plan, ctx) if pose_only else alignment_blocks(plan, ctx))
+    blocks = pose_blocks(plan, ctx) if pose_only else alignment_blocks(plan, ctx)
+    return np.column_stack([b if isinstance(b, np.ndarray) else b.full() for b in blocks])
 
 
 def dynamic_columns(ctx: Context) -> np.ndarray:
