@@ -141,6 +141,58 @@ def test_a_profiled_lag_keeps_what_its_profile_leaves_open(recorded):
     assert all(abs(f.profile.slope[k]) < 0.05 for k in lags), f.profile.slope
 
 
+@pytest.mark.slow
+def test_the_timing_s_uncertainty_is_carried_into_the_findings(recorded):
+    """The read-out's findings take in what the timing's uncertainty carries: the
+    change of each parameter between the fits with the start (then the clock) moved
+    each way by its uncertainty, as the recording split afresh at those timings gives
+    it; a lag difference moves with the start, the set-up far less."""
+    import dataclasses
+
+    from sdit_path.diagnose.effects import SetupOffset
+    from sdit_path.diagnose.fitting import solve
+    from sdit_path.diagnose.heldout import split_recording
+    from sdit_path.diagnose.options import Options
+    from sdit_path.diagnose.readout import _timing_spill
+
+    plan, ctx, expected, X, t_m, y = recorded
+    al = dataclasses.replace(refine(ctx, X, t_m, y, 3.5, -70.0), offset_std_s=1e-3,
+                             clock_std_ppm=2.0)
+    mismatch = ServoMismatch()
+    nl = {"common_lag_ms": 1.0, "second_order_lag_Y": -1.0, "second_order_lag_Z": -1.0}
+    chosen = [(SetupOffset(), {}, SetupOffset().columns(
+        ctx, Samples(np.arange(3), ctx.t_s[:3]), {})[1]),
+        (mismatch, nl, mismatch.columns(ctx, Samples(np.arange(3), ctx.t_s[:3]), nl)[1])]
+    widths = [len(labels) for _, _, labels in chosen]
+    slices = [slice(0, widths[0]), slice(widths[0], sum(widths))]
+    opt = Options()
+    split = split_recording(ctx, expected, t_m, y, al, opt)
+    carried = _timing_spill(ctx, chosen, slices, expected, split.tau, split.gap, al)
+
+    def fitted(moved):
+        sp = split_recording(ctx, expected, t_m, y, moved, opt)
+        S = Samples(sp.idx, sp.tau)
+        beta = solve(np.column_stack([e.columns(ctx, S, n)[0] for e, n, _ in chosen]), sp.gap)
+        return [e.parameters(beta[sl], lab, n, ctx) for (e, n, lab), sl in zip(chosen, slices)]
+
+    want = [{} for _ in chosen]
+    for move in ({"offset_s": 1e-3}, {"clock_ppm": 2.0}):
+        up = fitted(dataclasses.replace(al, **{k: getattr(al, k) + v for k, v in move.items()}))
+        down = fitted(dataclasses.replace(al, **{k: getattr(al, k) - v for k, v in move.items()}))
+        for k, (a, b) in enumerate(zip(up, down)):
+            for name, v in a.items():
+                if isinstance(v, float) and name not in nl:
+                    want[k][name] = want[k].get(name, 0.0) + ((v - b[name]) / 2) ** 2
+    for got, exp in zip(carried, want):
+        assert got.keys() >= exp.keys()
+        for name, v in exp.items():
+            # (the samples at the program's ends fall inside or out of a split afresh)
+            assert np.sqrt(got[name]) == pytest.approx(np.sqrt(v), rel=0.05, abs=2e-4), (
+                name, got[name], v)
+    lag = np.sqrt(carried[1]["lag_Y_minus_X_ms"])
+    assert 1e-4 < lag < 0.05, lag  # moves with a millisecond of start, by far less than 1 ms
+
+
 def test_every_mode_at_once_reads_as_each_axis_alone(recorded):
     """A structural mode's columns, every axis filtered at once and read with one
     interpolation, against each axis filtered and interpolated on its own."""
