@@ -132,6 +132,29 @@ def setup_errors(truth, rep) -> dict:
     return out
 
 
+def lag_errors(effect, params, rep) -> dict:
+    """A named servo lag's or mismatch's reported lags against the generator's: parameter
+    -> (error, stated standard uncertainty).  The generator lags every axis by
+    ``tau_ms``, and ``axis`` by ``mismatch_ms`` more; the diagnoser reports an equal
+    lag's ``tau_ms`` and a mismatch's ``lag_<axis>_minus_<reference>_ms``."""
+    out = {}
+    for f in rep["findings"]:
+        if f["effect"] != effect:
+            continue
+        std = f.get("parameter_std", {})
+        for key, value in f["parameters"].items():
+            if key not in std:
+                continue
+            if effect == "servo_lag" and key == "tau_ms":
+                out[key] = (value - params["tau_ms"], std[key])
+            elif effect == "servo_mismatch" and key.startswith("lag_") and "_minus_" in key:
+                axis, ref = key[len("lag_"):-len("_ms")].split("_minus_")
+                lag = {a: params["mismatch_ms"] if a == params["axis"] else 0.0
+                       for a in (axis, ref)}
+                out[key] = (value - (lag[axis] - lag[ref]), std[key])
+    return out
+
+
 def score(program, k, effect, truth, rep, seconds) -> dict:
     fs = [f for f in rep["findings"] if f["effect"] not in SETUP]
     al = rep["alignment"]
@@ -153,6 +176,8 @@ def score(program, k, effect, truth, rep, seconds) -> dict:
            "clock_bound_ppm": truth["clock_bound_ppm"], "timing_weak": al["timing_weak"],
            "seconds": round(seconds, 1)}
     out["setup"] = setup_errors(truth, rep) if effect is None or effect in SETUP_SCORED else {}
+    if effect in ("servo_lag", "servo_mismatch"):
+        out["lags"] = lag_errors(effect, truth["params"], rep)
     out["offset_ok"] = abs(beyond) <= max(2.0, 3 * out["offset_bound_ms"])
     out["clock_ok"] = abs(out["clock_error_ppm"]) <= max(5.0, 3 * out["clock_bound_ppm"])
     if effect is None:
@@ -216,6 +241,12 @@ def table(results: list[dict]) -> None:
         held = sum(abs(err) <= 3 * std for err, std in setup)
         print(f"stated set-up uncertainty covers the generator's set-up (3 sigma): {held} of "
               f"{len(setup)} numbers (dx, dy, dz, dL; clean traces and dynamic effects)")
+    lags = [e for r in results for e in r.get("lags", {}).values()]
+    if any("lags" in r for r in results):
+        held = sum(abs(err) <= 3 * std for err, std in lags)
+        print(f"stated lag uncertainty covers the generator's lag (3 sigma): {held} of "
+              f"{len(lags)} numbers (a servo lag's time constant, a mismatch's lag "
+              f"differences, where named)")
     per: dict = {}
     for r in single:
         per.setdefault(r["effect"], []).append(r["top1"])

@@ -283,6 +283,33 @@ def test_blind_check_on_the_independent_generator(plan_dir, tmp_path):
     assert slip["offset_ok"] and slip["clock_ok"], slip
 
 
+def test_the_blind_check_scores_a_lag_against_the_generator_s():
+    """The blind check's truth for a mismatch: the generator lags every axis by tau and
+    its ``axis`` by ``mismatch_ms`` more, so the diagnoser's lag of an axis minus its
+    reference is the mismatch where the axis is the one, minus it where the reference
+    is, and zero between two others; an equal lag's time constant is tau."""
+    import blind_check  # validation/ is on the path (conftest)
+
+    params = {"axis": "X", "other": "Y", "tau_ms": 21.2, "mismatch_ms": -2.75}
+    rep = {"findings": [
+        {"effect": "setup_offset", "parameters": {"dx_um": 1.0}, "parameter_std": {"dx_um": 0.1}},
+        {"effect": "servo_mismatch",
+         "parameters": {"common_lag_ms": 20.0, "lag_Y_minus_X_ms": 2.70, "lag_Z_minus_X_ms": 2.8,
+                        "lag_C_minus_Y_ms": 0.01},
+         "parameter_std": {"common_lag_ms": 1.0, "lag_Y_minus_X_ms": 0.02,
+                           "lag_Z_minus_X_ms": 0.03, "lag_C_minus_Y_ms": 0.005}}]}
+    got = blind_check.lag_errors("servo_mismatch", params, rep)
+    want = {"lag_Y_minus_X_ms": (-0.05, 0.02), "lag_Z_minus_X_ms": (0.05, 0.03),
+            "lag_C_minus_Y_ms": (0.01, 0.005)}
+    assert got.keys() == want.keys()
+    for key, pair in want.items():
+        assert got[key] == pytest.approx(pair), key
+    lag = {"findings": [{"effect": "servo_lag", "parameters": {"tau_ms": 40.0, "kv_per_s": 25.0},
+                         "parameter_std": {"tau_ms": 0.5, "kv_per_s": 0.3}}]}
+    (key, pair), = blind_check.lag_errors("servo_lag", {"tau_ms": 39.6}, lag).items()
+    assert key == "tau_ms" and pair == pytest.approx((0.4, 0.5))
+
+
 def test_a_structural_mode_is_found_on_its_own_axis(setup):
     """A mode of one axis rung by its acceleration (the deflection, not a ripple locked
     to time) is found on that axis at its frequency: the axes start and stop together,
