@@ -18,7 +18,7 @@ from .fitting import GAIN_STD, at_rest_check, covariance, noise_estimate, residu
     searched_std, seen_parameters, solve
 from .heldout import Split
 from .options import Options
-from .results import Explanation
+from .results import Explanation, FindingDraft, ProfileOpen
 from .selection import Selection
 from .where import locate
 
@@ -27,7 +27,7 @@ def _rms(v: np.ndarray) -> float:
     return float(np.sqrt(np.mean(v * v))) if len(v) else 0.0
 
 
-def _profile_open(f, key: str, prof) -> None:
+def _profile_open(f: FindingDraft, key: str, prof: ProfileOpen) -> None:
     """``f``'s uncertainties widened by what the profile of its timing parameter
     ``key`` with the timing (a common lag, the start and the lag differences moving
     together) leaves open: a timing (one fit) cannot read that."""

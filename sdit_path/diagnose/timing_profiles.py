@@ -65,12 +65,11 @@ def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: n
     samples polished) with its timing ``d`` away implies a standard uncertainty of
     ``d / sqrt(dchi2)`` on a quadratic profile (``d`` where the two fit alike).  So do
     the parameter itself and the finding's other parameters, fitted with it at each
-    value: along a flat profile a lag difference moves with the common lag and the
-    start together, by more than its uncertainty at one timing says (hard case: the
-    one-hour recording of the memory benchmark, where a change in the last digit of a
-    product picked another common lag and moved a lag difference by two of its stated
-    uncertainties); the largest of those, and how each parameter moves along the profile,
-    are kept on the finding (``profile``) for the read-out.  True when a parameter changed, and the
+    value: along a flat profile the common lag, the start and the lag differences move
+    together (hard case: the memory benchmark's one-hour recording, whose runs that
+    differed only in rounding put the common lag anywhere from 2.5 to 6 ms); the
+    largest of those, and how each parameter moves along the profile, are kept on the
+    finding (``profile``) for the read-out.  True when a parameter changed, and the
     largest offset (s) and clock (ppm) uncertainty over the values within 3 standard
     uncertainties."""
     changed = False
