@@ -13,7 +13,7 @@ from ..errormodel.chain import actual_ball
 from ..errormodel.errorset import ErrorSet
 from ..machine.kinematics import Kinematics
 from ..plan.files import PlanFiles
-from ..reading.context import Context, sample_at, strided
+from ..reading.context import Context, nearest_samples, sample_at, strided
 from ..sim.simulate import error_values
 from .align import Alignment, generic_columns, lsq
 from .effects import Effect, Samples, fitted_beside
@@ -77,8 +77,7 @@ def partner_columns(ctx: Context, eff: Effect, expected: np.ndarray, t_m: np.nda
         return None
     ok = ok[:: max(1, len(ok) // max_samples)]
     tt = tau[ok]
-    idx = np.clip(np.rint((tt - ctx.t_s[0]) / (ctx.t_s[-1] - ctx.t_s[0]) * (ctx.n - 1)).astype(int),
-                  0, ctx.n - 1)
+    idx = nearest_samples(ctx, tt)
     # the set-up only: the generic columns' v^2 and acceleration terms are the lag's own
     # signature and would leave it nothing but its longest tail
     G = sample_at(ctx.t_s, np.column_stack([expected, np.ones(ctx.n), ctx.u]), tt)

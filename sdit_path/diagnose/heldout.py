@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..reading.context import Context
+from ..reading.context import Context, nearest_samples
 from .align import Alignment
 from .effects import Samples, linear_axes
 from .fitting import noise_estimate
@@ -159,8 +159,7 @@ def split_recording(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.n
     ok = np.isfinite(y) & (tau_all >= ctx.t_s[0]) & (tau_all <= T)
     sel = np.flatnonzero(ok)
     tau = tau_all[sel]
-    idx = np.clip(np.rint((tau - ctx.t_s[0]) / (T - ctx.t_s[0]) * (ctx.n - 1)).astype(int),
-                  0, ctx.n - 1)
+    idx = nearest_samples(ctx, tau)
     gap = y[sel] - np.interp(tau, ctx.t_s, expected)
     held = held_stretches(ctx, opt.heldout_every)[stretch_numbers(ctx)[idx]]
     rng = np.random.default_rng(0)

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from ..reading.context import Context
+from ..reading.context import Context, nearest_samples
 from .align import Alignment
 from .ambiguity import ALIASED, judge_confidence, merge_aliased
 from .effects import GEOMETRIC, Effect, GeometryBeyond, Samples
@@ -75,8 +75,7 @@ def _timing_spill(ctx: Context, chosen: list, slices: list, expected: np.ndarray
             off = al.offset_s + sign * h * move[0]
             ppm = al.clock_ppm + sign * h * move[1]
             tt = np.clip((t_m - off) / (1.0 + ppm * 1e-6), t0, T)
-            ii = np.clip(np.rint((tt - t0) / (T - t0) * (ctx.n - 1)).astype(int), 0, ctx.n - 1)
-            S = Samples(ii, tt)
+            S = Samples(nearest_samples(ctx, tt), tt)
             A = np.column_stack([eff.columns(ctx, S, nl)[0] for eff, nl, _ in chosen])
             beta = solve(A, reading - np.interp(tt, ctx.t_s, expected))
             with np.errstate(invalid="ignore", divide="ignore"):

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from ..reading.context import Context, sample_at
+from ..reading.context import Context, nearest_samples, sample_at
 from .align import Alignment, SetupStep, coefficients_at, generic_columns, lsq, refine
 from .columns import TrialModel, model_columns, shape_columns
 from .effects import Effect, Samples, projection_gain
@@ -225,7 +225,6 @@ def shape_scan(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.nd
     about as well (chi-square within 9), the timing is known no better than they
     differ: the amounts (offset s, clock ppm) to widen by, and why, are returned too."""
     by = {e.name: e for e in lib}
-    span = ctx.t_s[-1] - ctx.t_s[0]
     n_fit = min(int(np.isfinite(y).sum()), REFINE_SAMPLES)
     taken, widen, why = None, (0.0, 0.0), ""
     for f in findings:
@@ -257,9 +256,7 @@ def shape_scan(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: np.nd
                 """The shape's reduction of ``r`` shifted by ``d`` (searched afresh
                 unless ``nl`` is given)."""
                 tt = tau - d
-                idx = np.clip(np.rint((tt - ctx.t_s[0]) / span * (ctx.n - 1)).astype(int), 0,
-                              ctx.n - 1)
-                S = Samples(idx, tt)
+                S = Samples(nearest_samples(ctx, tt), tt)
                 try:
                     nl = eff.search(ctx, S, r) if nl is None else nl
                     C = eff.columns(ctx, S, nl)[0] if nl is not None else None

@@ -259,6 +259,13 @@ def sample_at(t: np.ndarray, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
 _ROWS = 16384
 
 
+def nearest_samples(ctx: "Context", tau: np.ndarray) -> np.ndarray:
+    """The trajectory samples nearest the program times ``tau`` (clipped to the
+    program)."""
+    t0, T = ctx.t_s[0], ctx.t_s[-1]
+    return np.clip(np.rint((tau - t0) / (T - t0) * (ctx.n - 1)).astype(int), 0, ctx.n - 1)
+
+
 def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> Context:
     """``velocity_eps``: axis speed (mm/s or rad/s) below which an axis counts as
     standing still when its direction is tracked."""
