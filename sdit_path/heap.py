@@ -27,11 +27,19 @@ _M_MMAP_THRESHOLD = -3
 _M_MMAP_MAX = -4
 
 # glibc's defaults, put back afterwards
-_DEFAULTS = ((_M_MMAP_MAX, 65536), (_M_TRIM_THRESHOLD, 128 * 1024), (_M_TOP_PAD, 128 * 1024),
-             (_M_MMAP_THRESHOLD, 128 * 1024))
+_DEFAULTS = {_M_MMAP_MAX: 65536, _M_TRIM_THRESHOLD: 128 * 1024, _M_TOP_PAD: 128 * 1024,
+             _M_MMAP_THRESHOLD: 128 * 1024}
 
 #: glibc's largest mmap threshold on 64-bit systems (DEFAULT_MMAP_THRESHOLD_MAX)
 _LARGEST_THRESHOLD = 32 << 20
+
+#: the settings made here (glibc has no getter): what a nested block puts back
+_current = dict(_DEFAULTS)
+
+
+def _set(mallopt, param: int, value: int) -> None:
+    mallopt(param, value)
+    _current[param] = value
 
 
 @functools.cache
@@ -59,14 +67,35 @@ def reusing_freed_memory(keep_bytes: int = 128 << 20):
     if mallopt is None:
         yield
         return
-    mallopt(_M_MMAP_THRESHOLD, _LARGEST_THRESHOLD)
-    mallopt(_M_TRIM_THRESHOLD, min(keep_bytes, 2**31 - 1))
-    mallopt(_M_TOP_PAD, min(keep_bytes // 2, 2**31 - 1))
+    before = dict(_current)
+    _set(mallopt, _M_MMAP_THRESHOLD, _LARGEST_THRESHOLD)
+    _set(mallopt, _M_TRIM_THRESHOLD, min(keep_bytes, 2**31 - 1))
+    _set(mallopt, _M_TOP_PAD, min(keep_bytes // 2, 2**31 - 1))
     try:
         yield
     finally:
-        for param, value in _DEFAULTS:
-            mallopt(param, value)
+        for param, value in before.items():
+            _set(mallopt, param, value)
+        release_freed_memory()
+
+
+@contextlib.contextmanager
+def mapping_large_blocks(threshold: int = 4 << 20):
+    """Within the block, allocations above ``threshold`` are mapped, and handed back
+    to the kernel when freed: a tall program's arrays (27 MB each an hour at 1 kHz,
+    made and dropped by the hundred) otherwise stay in the heap once freed, hundreds of
+    MB of them between two :func:`release_freed_memory`."""
+    mallopt = _mallopt()
+    if mallopt is None:
+        yield
+        return
+    before = dict(_current)
+    _set(mallopt, _M_MMAP_THRESHOLD, threshold)
+    try:
+        yield
+    finally:
+        for param, value in before.items():
+            _set(mallopt, param, value)
         release_freed_memory()
 
 

@@ -3,13 +3,14 @@ command that reads a recording does it, then diagnosed."""
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 
 from ..diagnose import Diagnosis, diagnose
 from ..diagnose.align import AlignmentError
 from ..diagnose.recording import align_recording
 from ..errormodel.errorset import ErrorSet
-from ..heap import release_freed_memory
+from ..heap import mapping_large_blocks, release_freed_memory
 from ..plan.files import PlanFiles
 from ..reading.context import Context, build_context
 from ..reading.trace import Trace
@@ -22,16 +23,18 @@ def diagnose_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
     """The diagnosis of ``trace`` (the file ``label``) against ``program`` and the reading
     ``model`` predicts, and the program's context (for the pictures)."""
     ctx = build_context(plan, program)
-    step("matching the recording to its program")
-    rec = align_recording(plan, program, trace, label, ctx)
-    # the trajectory as read (what the context holds of it stays) and what the matching
-    # freed: let go before the diagnosis (a tenth of a GB an hour at 1 kHz)
-    plan.let_go()
-    release_freed_memory()
-    try:
-        # with a geometric model the search is made again with what it predicts
-        result = diagnose(plan, program, trace, model, progress=step, ctx=ctx,
-                          alignment=rec.alignment if model is None else None)
-    except AlignmentError as exc:
-        raise AlignmentError(f"{label}: {exc}") from None
+    release_freed_memory()  # (what reading the trajectory and making the context freed)
+    with mapping_large_blocks() if ctx.tall else contextlib.nullcontext():
+        step("matching the recording to its program")
+        rec = align_recording(plan, program, trace, label, ctx)
+        # the trajectory as read (what the context holds of it stays) and what the
+        # matching freed: let go before the diagnosis (a tenth of a GB an hour at 1 kHz)
+        plan.let_go()
+        release_freed_memory()
+        try:
+            # with a geometric model the search is made again with what it predicts
+            result = diagnose(plan, program, trace, model, progress=step, ctx=ctx,
+                              alignment=rec.alignment if model is None else None)
+        except AlignmentError as exc:
+            raise AlignmentError(f"{label}: {exc}") from None
     return result, ctx

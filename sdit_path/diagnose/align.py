@@ -25,7 +25,8 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from ..errors import RecordingError
 from ..reading.context import Context, sample_at
-from .tall import RowModel, is_tall
+from ..reading.rows import gradient_rows
+from .tall import Made, RowModel, is_tall
 
 
 class AlignmentError(RecordingError):
@@ -119,12 +120,18 @@ def generic_columns(ctx: Context, expected_um: np.ndarray,
 
 def _generic_base(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
     """The generic columns that depend on the program alone, and their spreads (made
-    once per context: the timing searches build the model dozens of times)."""
+    once per context: the timing searches build the model dozens of times; on a tall
+    program made where they are read, 11 columns on every sample being 0.3 GB an
+    hour)."""
     key = ("generic",)
     if key not in ctx.cache:
         mov = ctx.moving.astype(float)
         k = max(1, int(round(0.02 / max(float(np.median(np.diff(ctx.t_s))), 1e-6))))
         mov = np.convolve(mov, np.ones(k) / k, mode="same")
+        if ctx.tall:
+            base = Made(ctx.n, lambda idx: _generic_rows(ctx, mov, idx))
+            ctx.cache[key] = (base, base.spread())
+            return ctx.cache[key]
         cols = [np.ones(ctx.n), ctx.u[:, 0], ctx.u[:, 1], ctx.u[:, 2], mov,
                 -(ctx.speed_mm_per_s ** 2) / (2 * ctx.length_mm) * 1e3, ctx.t_s / 3600.0,
                 _axis_acceleration_reading(ctx)]
@@ -135,13 +142,27 @@ def _generic_base(ctx: Context) -> tuple[np.ndarray, np.ndarray]:
     return ctx.cache[key]
 
 
-def axis_acceleration_readings(ctx: Context) -> np.ndarray:
+def _generic_rows(ctx: Context, mov: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The rows ``idx`` of :func:`_generic_base`'s columns (the same arithmetic)."""
+    u, g, d = ctx.u[idx], ctx.gain[idx], ctx.direction[idx]
+    cols = [np.ones(len(idx)), u[:, 0], u[:, 1], u[:, 2], mov[idx],
+            -(ctx.speed_mm_per_s[idx] ** 2) / (2 * ctx.length_mm[idx]) * 1e3,
+            ctx.t_s[idx] / 3600.0, axis_acceleration_readings(ctx, idx).sum(axis=1)]
+    cols += [g[:, j] * d[:, j] for j in ctx.linear if j in ctx.observable]
+    return np.column_stack(cols)
+
+
+def axis_acceleration_readings(ctx: Context, idx: np.ndarray | None = None) -> np.ndarray:
     """``(n, k)``: gain_j * qddot_j of each observable axis j, what an error following
-    that axis' acceleration reads (um per unit, scaled later)."""
+    that axis' acceleration reads (um per unit, scaled later); at the samples ``idx``
+    only if given (the same numbers)."""
     obs = list(ctx.observable)
     if len(ctx.t_s) < 3 or not obs:
-        return np.zeros((ctx.n, 0))
-    return ctx.gain[:, obs] * np.gradient(ctx.qdot[:, obs], ctx.t_s, axis=0)
+        return np.zeros((ctx.n if idx is None else len(idx), 0))
+    if idx is None:
+        return ctx.gain[:, obs] * np.gradient(ctx.qdot[:, obs], ctx.t_s, axis=0)
+    return ctx.gain[idx][:, obs] * gradient_rows(ctx.t_s, ctx.uniform_step(),
+                                                 lambda i: ctx.qdot[i][:, obs], idx)
 
 
 def _axis_acceleration_reading(ctx: Context) -> np.ndarray:
@@ -299,6 +320,28 @@ def _fit_rms(X, t, tm, yy, offset_s, k):
     return float(np.sqrt(np.mean(r * r))), tau, Xs, beta
 
 
+def _rate_at(ctx: Context, X: np.ndarray, beta: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """``sample_at(t, np.gradient(X @ beta, t), tau)``: the model's rate at the program
+    times ``tau``.  A tall model's product is made only at the rows that reads and their
+    neighbours (a pass over every row of a long program makes every column again)."""
+    t = ctx.t_s
+    if not isinstance(X, RowModel):
+        return sample_at(t, np.gradient(X @ beta, t), tau)
+    n = len(t)
+    dt = (t[-1] - t[0]) / max(n - 1, 1)
+    x = np.clip((tau - t[0]) / dt, 0.0, n - 1.000001)
+    i = x.astype(int)
+    nxt = np.minimum(i + 1, n - 1)
+    need = np.unique(np.r_[i, nxt])
+    around = np.unique(np.clip(np.r_[need - 1, need, need + 1], 0, n - 1))
+    f = X.product_at(around, beta)[:, None]
+    rate = gradient_rows(t, ctx.uniform_step(), lambda r: f[np.searchsorted(around, r)], need)[:, 0]
+    frac = x - i
+    out = rate[np.searchsorted(need, i)] * (1 - frac)
+    out += rate[np.searchsorted(need, nxt)] * frac
+    return out
+
+
 def _timing_std(JJ: np.ndarray, r: np.ndarray) -> tuple[float, float]:
     """Standard uncertainties of the last two columns of ``J`` (given as ``JJ = J.T @ J``;
     offset in s, clock in ppm) with the model columns before them projected out (rank-revealing, so that
@@ -353,8 +396,7 @@ def refine(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray, offset_s
     std = (np.inf, np.inf)
     rms, tau, Xs, beta = _fit_rms(X, t, tm, yy, offset_s, k)
     for _ in range(iterations):
-        f = X @ beta
-        fd = sample_at(t, np.gradient(f, t), tau)
+        fd = _rate_at(ctx, X, beta, tau)
         raw = (tm - offset_s) / (1 + k)
         inside = (raw > t[0]) & (raw < T)
         # d tau / d offset = -1/(1+k); d tau / d k = -tau/(1+k)
@@ -528,8 +570,11 @@ def align(ctx: Context, expected_um: np.ndarray, t_m: np.ndarray, y: np.ndarray,
     # and the full model polishes
     few = extra is not None and ctx.duration_s > COARSE_ALL_COLUMNS_S
     if search or not seeds:
-        found = coarse(ctx, generic_columns(ctx, expected_um) if few else X, t_m, y, ppm_limit,
-                       candidates=candidates)
+        # (a tall model's generic part: the same columns, made where read)
+        generic = (X.generic_part() if isinstance(X, RowModel) else
+                   generic_columns(ctx, expected_um)) if few else X
+        found = coarse(ctx, generic, t_m, y, ppm_limit, candidates=candidates)
+        generic = None
     else:
         found = []
     found = [*found, *[s for s in seeds

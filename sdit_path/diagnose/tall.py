@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..reading.rows import interp_rows
+
 #: rows made at a time where sums run over every row (65,536 rows of eighty columns:
 #: 42 MB)
 BLOCK_ROWS = 1 << 16
@@ -35,15 +37,7 @@ class Interpolated:
         knot's value at the last row), so the same numbers, three times faster than
         column by column."""
         at = np.asarray(idx)
-        x = at.ravel().astype(float)
-        k, v = self.k, self.values
-        if len(k) < 2:
-            out = np.repeat(v[:1], len(x), axis=0)
-        else:
-            j = np.clip(np.searchsorted(k, x, side="right") - 1, 0, len(k) - 2)
-            lo, hi = k[j].astype(float), k[j + 1].astype(float)
-            out = (v[j + 1] - v[j]) / (hi - lo)[:, None] * (x - lo)[:, None] + v[j]
-            out[x >= k[-1]] = v[-1]
+        out = interp_rows(self.k, self.values, at.ravel())
         return out[0] if at.ndim == 0 else out
 
     def spread(self) -> np.ndarray:
@@ -55,9 +49,49 @@ class Interpolated:
         return self[np.arange(self.shape[0])]
 
 
+class Made:
+    """``(n, w)`` columns made by ``rows(idx)`` at the rows asked for (an effect's columns
+    at those trajectory samples: each row is made from the context at its own sample,
+    so it is the same number whichever rows are asked for together)."""
+
+    def __init__(self, n: int, rows, spread: np.ndarray | None = None):
+        self.rows, self.known_spread = rows, spread
+        self.shape = (n, rows(np.zeros(1, dtype=int)).shape[1])
+        self.ndim = 2
+
+    def __getitem__(self, idx) -> np.ndarray:
+        at = np.asarray(idx)
+        out = self.rows(at.ravel())
+        return out[0] if at.ndim == 0 else out
+
+    def blocks(self):
+        """``(first row, rows)`` a block of :data:`BLOCK_ROWS` at a time."""
+        for a in range(0, self.shape[0], BLOCK_ROWS):
+            yield a, self.rows(np.arange(a, min(a + BLOCK_ROWS, self.shape[0])))
+
+    def spread(self) -> np.ndarray:
+        """Each column's peak-to-peak over all rows (a pass over them, unless known)."""
+        if self.known_spread is not None:
+            return self.known_spread
+        lo = np.full(self.shape[1], np.inf)
+        hi = np.full(self.shape[1], -np.inf)
+        for _, vals in self.blocks():
+            lo, hi = np.minimum(lo, vals.min(axis=0)), np.maximum(hi, vals.max(axis=0))
+        return hi - lo if self.shape[0] else np.zeros(self.shape[1])
+
+    def __matmul__(self, share: np.ndarray) -> np.ndarray:
+        out = np.empty((self.shape[0],) + np.shape(share)[1:])
+        for a, vals in self.blocks():
+            out[a:a + len(vals)] = vals @ share
+        return out
+
+    def full(self) -> np.ndarray:
+        return self[np.arange(self.shape[0])]
+
+
 def is_tall(part) -> bool:
     """A part made where read (not an array)."""
-    return isinstance(part, (Interpolated, RowModel))
+    return isinstance(part, (Interpolated, Made, RowModel))
 
 
 class RowModel:
@@ -117,6 +151,13 @@ class RowModel:
                         out[:, c] += np.interp(np.arange(self.n), part.k, grid[:, c])
             else:
                 out += part @ share
+        return out
+
+    def product_at(self, rows: np.ndarray, beta: np.ndarray) -> np.ndarray:
+        """``self[rows] @ beta``, a block of rows at a time."""
+        out = np.empty(len(rows))
+        for a in range(0, len(rows), BLOCK_ROWS):
+            out[a:a + BLOCK_ROWS] = self[rows[a:a + BLOCK_ROWS]] @ beta
         return out
 
     def column_rms(self) -> np.ndarray:

@@ -14,6 +14,8 @@ import numpy as np
 from ..machine.kinematics import Kinematics
 from ..plan.files import PlanFiles
 from ..timing.trajectory import axis_values_rad
+from .rows import (GridRows, Labels, RateRows, Rows, RunEdge, UnitRows, gradient_rows,
+                   uniform_step)
 from .written import written_deviation_um
 
 
@@ -87,39 +89,48 @@ class Context:
     what a sample needs); ``observable``: axes whose motion the bar sees at all (an axis
     always moving across the bar, e.g. Y of a B-C table set-up that keeps the bar in the
     XZ plane, is not); ``moving : (n,)``; labels ``segment, phase : (n,)``.
+
+    On a program longer than :data:`TALL_ROWS` samples, ``u``, ``qdot``, ``gain``,
+    ``run_start_mm`` and ``run_end_mm`` are made where read (:mod:`.rows`: the same
+    numbers, indexed the same way), ``direction`` is held as int8 and ``segment`` and
+    ``phase`` as codes of their labels.
     """
 
     t_s: np.ndarray
     ball_mm: np.ndarray
-    u: np.ndarray
+    u: np.ndarray | Rows
     length_mm: np.ndarray
     speed_mm_per_s: np.ndarray
     q: np.ndarray
-    qdot: np.ndarray
-    gain: np.ndarray
+    qdot: np.ndarray | Rows
+    gain: np.ndarray | Rows
     direction: np.ndarray
     reversal_index: tuple
     moving: np.ndarray
-    segment: np.ndarray
-    phase: np.ndarray
+    segment: np.ndarray | Labels
+    phase: np.ndarray | Labels
     axis_names: tuple[str, ...]
     linear: tuple[int, ...]
     pivot_mm: np.ndarray
     arc_mm: np.ndarray
     arc_integral: np.ndarray
-    run_start_mm: np.ndarray
-    run_end_mm: np.ndarray
+    run_start_mm: np.ndarray | RunEdge
+    run_end_mm: np.ndarray | RunEdge
     #: unit bar direction in the machine's (bed) frame, ``(n, 3)``: a spindle's drift is
     #: seen through it (``u`` turns with a rotary table; without one it is ``u`` itself)
-    u_bed: np.ndarray
+    u_bed: np.ndarray | Rows
     observable: tuple[int, ...] = ()
     #: ``(n,)`` um: the bar length along the program as written for the plan's
     #: controller less that along the planned path (LinuxCNC's chords; zeros for a
-    #: controller that writes the curve): part of every expected reading
+    #: controller that writes the curve, or none on a tall program): part of every
+    #: expected reading
     written_um: np.ndarray = field(default_factory=lambda: np.zeros(0))
     #: the trajectory is a control's motion of the program as written (its chords
     #: included), not the planned curve: its own distance from the pivot is the reading
     control_path: bool = False
+    #: longer than :data:`TALL_ROWS` samples: its per-sample values, and the diagnosis'
+    #: tall models of it, are made where they are read
+    tall: bool = False
     #: arrays derived from the others, kept by the stages that read them (keyed by each),
     #: within :data:`CACHE_BYTES`
     cache: ArrayCache = field(default_factory=ArrayCache)
@@ -179,6 +190,14 @@ class Context:
             travel = np.cumsum(np.abs(self.qdot[:, j]) * dt)
             self.cache[key] = (travel, travel[_crawl_start(slow)])
         return self.cache[key]
+
+    def uniform_step(self) -> float:
+        """The grid's step if every step is equal (numpy's gradient then takes its
+        uniform formula), else NaN (cached)."""
+        key = ("uniform step",)
+        if key not in self.cache:
+            self.cache[key] = (np.array([uniform_step(self.t_s)]),)
+        return float(self.cache[key][0][0])
 
     @property
     def n(self) -> int:
@@ -266,6 +285,20 @@ def nearest_samples(ctx: "Context", tau: np.ndarray) -> np.ndarray:
     return np.clip(np.rint((tau - t0) / (T - t0) * (ctx.n - 1)).astype(int), 0, ctx.n - 1)
 
 
+#: programs longer than this many trajectory samples (17 min at 1 kHz) keep what follows
+#: sample by sample from the rest as its recipe (:mod:`.rows`): held whole, the bar
+#: direction, the axis rates and the gains are 0.23 GB an hour, and their making twice that
+TALL_ROWS = 1_000_000
+
+#: rows at a time where a tall program's arrays are made
+_BLOCK = 1 << 16
+
+
+def _blocks(n: int, first: int = 0):
+    for a in range(first, n, _BLOCK):
+        yield a, min(a + _BLOCK, n)
+
+
 def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> Context:
     """``velocity_eps``: axis speed (mm/s or rad/s) below which an axis counts as
     standing still when its direction is tracked."""
@@ -276,25 +309,54 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     t = np.asarray(traj.t_s, dtype=float)
     pivot = np.asarray(cfg.ballbar.pivot_mm, dtype=float)
     ball = np.asarray(traj.ball_mm, dtype=float)  # = kin.forward(q), as the plan wrote it
-    r = ball - pivot
-    length = np.linalg.norm(r, axis=1)
-    u = r / length[:, None]
+    n = len(t)
+    tall = n > TALL_ROWS
+    u: np.ndarray | Rows
+    if tall:  # (the same arithmetic row by row, a block of rows at a time)
+        length = np.empty(n)
+        for a, b in _blocks(n):
+            length[a:b] = np.linalg.norm(ball[a:b] - pivot, axis=1)
+        u = UnitRows(ball, pivot, length)
+    else:
+        r = ball - pivot
+        length = np.linalg.norm(r, axis=1)
+        u = r / length[:, None]
+        del r
     m = q.shape[1]
     # gains vary smoothly with the pose: evaluate on a coarser grid and interpolate
-    k = strided(len(t), ball)
+    k = strided(n, ball)
     qs, us = q[k], u[k]
     bs = kin.forward(qs)
-    gain = np.zeros((len(t), m))
+    grid = np.zeros((len(k), m))
     for j in range(m):
         h = 1e-6 if kin.axes[j].is_rotary else 1e-3
         qh = qs.copy()
         qh[:, j] += h
-        gs = np.einsum("ni,ni->n", kin.forward(qh) - bs, us) / h
-        gain[:, j] = np.interp(np.arange(len(t)), k, gs)
-    qdot = np.gradient(q, t, axis=0) if len(t) > 2 else np.zeros_like(q)
-    v = np.gradient(ball, t, axis=0) if len(t) > 2 else np.zeros_like(ball)
-    speed = np.linalg.norm(v, axis=1)
-    direction = directions(qdot, velocity_eps)
+        grid[:, j] = np.einsum("ni,ni->n", kin.forward(qh) - bs, us) / h
+    gain: np.ndarray | Rows
+    if tall:
+        gain = GridRows(n, k, grid)
+    else:
+        gain = np.zeros((n, m))
+        for j in range(m):
+            gain[:, j] = np.interp(np.arange(n), k, grid[:, j])
+    qdot: np.ndarray | Rows
+    if tall:
+        qdot = RateRows(q, t)
+        speed = np.empty(n)
+        step = uniform_step(t)
+        for a, b in _blocks(n):
+            v = gradient_rows(t, step, lambda i: ball[i], np.arange(a, b))
+            speed[a:b] = np.linalg.norm(v, axis=1)
+        direction = np.empty((n, m), dtype=np.int8)
+        for j in range(m):
+            direction[:, j] = directions(qdot[:, j][:, None], velocity_eps)[:, 0]
+    else:
+        qdot = np.gradient(q, t, axis=0) if n > 2 else np.zeros_like(q)
+        v = np.gradient(ball, t, axis=0) if n > 2 else np.zeros_like(ball)
+        speed = np.linalg.norm(v, axis=1)
+        direction = directions(qdot, velocity_eps)
+    del v
     rev_index = tuple(reversals(direction[:, j])[0] for j in range(m))
     phase = np.asarray(traj.phase, dtype=object)
     moving = (phase != "dwell") & (phase != "reposition")
@@ -302,24 +364,54 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     linear = tuple(j for j in range(m) if not kin.axes[j].is_rotary)
     # arc length along each run on one increasing axis (runs spaced apart), and the
     # running integral of the position over it (for arc-length averages)
-    ds = np.r_[0.0, np.linalg.norm(np.diff(ball, axis=0), axis=1)]
-    ds[~moving] = 0.0
     new_run = np.r_[True, run_id[1:] != run_id[:-1]]
+    del run_id
+    ds = np.zeros(n)
+    if tall:
+        for a, b in _blocks(n, 1):
+            ds[a:b] = np.linalg.norm(ball[a:b] - ball[a - 1:b - 1], axis=1)
+    else:
+        ds[1:] = np.linalg.norm(np.diff(ball, axis=0), axis=1)
+    ds[~moving] = 0.0
     ds[new_run] = 1e3  # a gap between runs no window bridges
     arc = np.cumsum(ds)
-    mid = np.r_[ball[:1] * 0, 0.5 * (ball[1:] + ball[:-1])] * ds[:, None]
-    mid[new_run] = 0.0
-    integral = np.cumsum(mid, axis=0)
-    first = np.maximum.accumulate(np.where(new_run, np.arange(len(t)), 0))
-    last_idx = np.r_[np.flatnonzero(new_run)[1:] - 1, len(t) - 1]
-    run_no = np.cumsum(new_run) - 1
+    starts = np.flatnonzero(new_run)
+    run_start: np.ndarray | RunEdge
+    run_end: np.ndarray | RunEdge
+    if tall:
+        # the running sum a block at a time, each block begun from the sum before it
+        # (so added in the same order as the sum over the whole)
+        integral = np.empty((n, 3))
+        carry = np.zeros((1, 3))
+        for a, b in _blocks(n):
+            lo = max(a, 1)
+            mid = np.zeros((b - a, 3))
+            mid[lo - a:] = 0.5 * (ball[lo:b] + ball[lo - 1:b - 1]) * ds[lo:b, None]
+            mid[new_run[a:b]] = 0.0
+            integral[a:b] = np.cumsum(np.r_[carry, mid], axis=0)[1:]
+            carry = integral[b - 1:b]
+        run_start, run_end = RunEdge(arc, starts, last=False), RunEdge(arc, starts, last=True)
+    else:
+        mid = np.r_[ball[:1] * 0, 0.5 * (ball[1:] + ball[:-1])] * ds[:, None]
+        mid[new_run] = 0.0
+        integral = np.cumsum(mid, axis=0)
+        first = np.maximum.accumulate(np.where(new_run, np.arange(n), 0))
+        last_idx = np.r_[starts[1:] - 1, n - 1]
+        run_no = np.cumsum(new_run) - 1
+        run_start, run_end = arc[first], arc[last_idx][run_no]
+    del mid, ds
     u_bed = u
     if any(kin.axes[i].is_rotary for i in kin.workpiece):
         rot, _ = kin.table_transform(q)  # p_bed = rot p_table + trans
-        u_bed = np.einsum("nij,nj->ni", rot, u)
+        u_bed = np.einsum("nij,nj->ni", rot, np.asarray(u))
+    segment = np.asarray(traj.segment, dtype=object)
+    labels = (Labels(segment), Labels(phase)) if tall else (segment, phase)
+    written = written_deviation_um(plan, program, ball, moving)
+    if tall and not written.any():
+        written = np.zeros(0)  # (none: what every reader takes for zeros)
     return Context(t, ball, u, length, speed, q, qdot, gain, direction, rev_index, moving,
-                   np.asarray(traj.segment, dtype=object), phase, tuple(kin.names), linear,
-                   pivot, arc, integral, arc[first], arc[last_idx][run_no], u_bed,
+                   labels[0], labels[1], tuple(kin.names), linear,
+                   pivot, arc, integral, run_start, run_end, u_bed,
                    tuple(j for j in range(m) if float(np.sqrt(np.mean(gain[:, j] ** 2))) > 1e-6),
-                   written_um=written_deviation_um(plan, program, ball, moving),
-                   control_path=plan.motion_of(program) is not None)
+                   written_um=written,
+                   control_path=plan.motion_of(program) is not None, tall=tall)

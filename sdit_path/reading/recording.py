@@ -267,12 +267,10 @@ def _read_fast(p: Path, body: str, rows: int, cols: list[str], header: dict) -> 
         return None
     if np.isinf(dl).any() or (np.abs(np.nan_to_num(dl)) > MAX_READING_UM).any():
         return None  # the careful reader names the line
-    n = len(t)
-    empty = np.full(n, "", dtype=object)
-    seg, ph = empty, empty
     if "segment" in cols or "phase" in cols:
         return None  # keep the labels: the careful reader does that
-    return Trace(t, dl, seg, ph, header)
+    no_labels = np.zeros(0, dtype=object)  # (an empty string per sample: 27 MB an hour)
+    return Trace(t, dl, no_labels, no_labels, header)
 
 
 def trace_csv(trace: Trace) -> str:

@@ -337,27 +337,81 @@ def test_the_reversal_state_read_at_samples_is_what_every_sample_held(recorded):
         assert np.array_equal(flips, np.flatnonzero(np.diff(ctx.direction[:, j])) + 1)
 
 
+def test_a_long_programs_context_made_where_read_is_the_context_held_whole(recorded,
+                                                                           monkeypatch):
+    """A program longer than TALL_ROWS keeps its bar directions, axis rates, gains and
+    run edges as their recipe (reading/rows.py), its directions as int8 and its labels
+    as codes: forced on
+    GOLD_A, every value read the ways the effects read them (rows, rows of a column,
+    whole columns, the whole array) is the held array's to the bit."""
+    import dataclasses
+
+    from sdit_path.reading import context as context_mod
+    from sdit_path.reading.rows import Rows, RunEdge
+
+    plan, whole = recorded[0], recorded[1]
+    monkeypatch.setattr(context_mod, "TALL_ROWS", 0)
+    tall = build_context(plan, PROGRAM)
+    rows = np.r_[0, 1, 2, np.random.default_rng(3).integers(0, whole.n, 500), whole.n - 2,
+                 whole.n - 1]
+    made = []
+    for f in dataclasses.fields(whole):
+        a, b = getattr(whole, f.name), getattr(tall, f.name)
+        if isinstance(b, (Rows, RunEdge)):
+            made.append(f.name)
+        if f.name == "written_um" and not a.any():
+            assert len(b) == 0  # none: what every reader takes for zeros
+            continue
+        if not isinstance(a, np.ndarray) or a.dtype == object or len(a) != whole.n:
+            continue
+        assert np.array_equal(np.asarray(b), a) and np.array_equal(b[rows], a[rows]), f.name
+        assert np.array_equal(b[rows[5]], a[rows[5]]), f.name
+        if a.ndim == 2:
+            for j in range(a.shape[1]):
+                assert np.array_equal(b[:, j], a[:, j]) and np.array_equal(b[rows, j], a[rows, j])
+            assert np.array_equal(b[:, [2, 0]], a[:, [2, 0]]), f.name
+    assert set(made) == {"u", "qdot", "gain", "run_start_mm", "run_end_mm", "u_bed"}
+    assert tall.direction.dtype == np.int8
+    for name in ("segment", "phase"):  # held as codes of their labels
+        a, b = getattr(whole, name), getattr(tall, name)
+        assert not isinstance(b, np.ndarray) and b[rows[5]] == a[rows[5]]
+        assert np.array_equal(b[rows], a[rows]) and np.array_equal(np.asarray(b), a)
+        assert np.array_equal(b[5:-3], a[5:-3])
+        for label in ("dwell", "nothing of the sort", str(a[rows[7]])):
+            assert np.array_equal(b == label, a == label)
+            assert np.array_equal(b != label, a != label)
+    assert tall.reversal_index and all(np.array_equal(p, q) for p, q in
+                                        zip(tall.reversal_index, whole.reversal_index))
+    assert tall.observable == whole.observable
+
+
 @pytest.mark.slow
 def test_a_long_programs_model_made_where_read_is_the_model_held_whole(recorded, monkeypatch):
-    """A program longer than TALL_ROWS has its pose blocks made at the rows read
-    (diagnose/tall.py): forced on GOLD_A, every row is the row of the model held whole,
-    a product with it the same to rounding, the coarse search's column scales and block
-    means the same to rounding, and the alignment the same to far below its
-    uncertainty."""
+    """A tall program (longer than TALL_ROWS) has its generic and alignment columns made
+    at the rows read (diagnose/tall.py: the pose blocks interpolated from their grid,
+    the generic base and the dynamic blocks each at those samples): forced on GOLD_A,
+    every row is the row of the model held whole, a product with it the same to
+    rounding, the coarse search's column scales and block means the same to rounding,
+    and the alignment the same to far below its uncertainty."""
     from sdit_path.diagnose.effects import generic
     from sdit_path.diagnose.fitting import noise_estimate
-    from sdit_path.diagnose.tall import Interpolated, RowModel
+    from sdit_path.diagnose.tall import Interpolated, Made, RowModel
+    from sdit_path.reading import context as context_mod
 
     plan, ctx, expected, X, t_m, y = recorded
     whole = generic_columns(ctx, expected, generic.alignment_blocks(plan, ctx), consume=True)
-    monkeypatch.setattr(generic, "TALL_ROWS", 0)
-    blocks = generic.alignment_blocks(plan, ctx)
-    assert any(isinstance(b, Interpolated) for b in blocks)
+    monkeypatch.setattr(context_mod, "TALL_ROWS", 0)
+    tctx = build_context(plan, PROGRAM)
+    assert tctx.tall and not ctx.tall
+    blocks = generic.alignment_blocks(plan, tctx)
     pose = [b for b in blocks if isinstance(b, Interpolated)]
-    for b in pose:
+    made = [b for b in blocks if isinstance(b, Made)]
+    assert len(pose) + len(made) == len(blocks) and pose and made
+    for b in pose + made:
         assert np.array_equal(b.spread(), np.ptp(b.full(), axis=0))
-    tall = generic_columns(ctx, expected, blocks, consume=True)
+    tall = generic_columns(tctx, expected, blocks, consume=True)
     assert isinstance(tall, RowModel) and tall.shape == whole.shape
+    assert isinstance(tall.parts[tall.generic - 1], Made)  # the generic base
     rows = np.r_[0, 1, 17, np.random.default_rng(1).integers(0, ctx.n, 500), ctx.n - 1]
     assert np.array_equal(tall[rows], whole[rows])
     assert np.array_equal(tall[ctx.n - 1], whole[ctx.n - 1])
@@ -365,6 +419,8 @@ def test_a_long_programs_model_made_where_read_is_the_model_held_whole(recorded,
     assert np.array_equal(tall.generic_part()[rows], generic_columns(ctx, expected)[rows])
     beta = np.random.default_rng(2).normal(size=whole.shape[1])
     assert np.allclose(tall @ beta, whole @ beta, rtol=0, atol=1e-12 * np.abs(whole).max())
+    assert np.allclose(tall.product_at(rows, beta), (whole @ beta)[rows], rtol=0,
+                       atol=1e-12 * np.abs(whole).max())
     unit = align_mod.column_rms(whole)
     assert np.allclose(tall.column_rms(), unit, rtol=1e-12)
     per, nb = 100, ctx.n // 100
@@ -372,10 +428,15 @@ def test_a_long_programs_model_made_where_read_is_the_model_held_whole(recorded,
                                                    np.arange(nb + 1) * per)[0]
                              for a in range(whole.shape[1])])
     assert np.allclose(tall.block_means(per, nb, unit), means, rtol=0, atol=1e-10)
+    # the model's rate where the timing reads it, made at those rows alone
+    tau = np.sort(np.random.default_rng(4).uniform(ctx.t_s[0], ctx.t_s[-1], 2000))
+    assert np.allclose(align_mod._rate_at(tctx, tall, beta, tau),
+                       align_mod._rate_at(ctx, whole, beta, tau), rtol=1e-9,
+                       atol=1e-9 * np.abs(whole @ beta).max())
     ok = np.isfinite(y)
     noise = noise_estimate(y[ok], t_m[ok])
     a = align_mod.align(ctx, expected, t_m, y, model=whole, extra=True, noise_um=noise)
-    b = align_mod.align(ctx, expected, t_m, y,
-                        extra=lambda: generic.alignment_blocks(plan, ctx), noise_um=noise)
+    b = align_mod.align(tctx, expected, t_m, y,
+                        extra=lambda: generic.alignment_blocks(plan, tctx), noise_um=noise)
     assert abs(a.offset_s - b.offset_s) < 1e-3 * a.offset_std_s
     assert abs(a.clock_ppm - b.clock_ppm) < 1e-3 * a.clock_std_ppm

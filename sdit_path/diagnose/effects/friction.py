@@ -57,24 +57,32 @@ class ReversalSpike(Effect):
     shape_holds_timing = True
 
     @staticmethod
-    def _since(ctx, j, onset):
-        """Time since axis j last reversed, a reversal counted once the axis moves
-        faster than ``onset`` (mm/s) the other way, and the direction since then."""
+    def _since(ctx, j, onset, idx):
+        """At the samples ``idx``: the time since axis j last reversed, a reversal
+        counted once the axis moves faster than ``onset`` (mm/s) the other way (inf
+        before the first), and the direction since then.  What is kept is the
+        reversals and the direction after each (the direction is constant between
+        them): a few numbers where the arrays on every sample were 50 MB an hour."""
         key = ("reversal_onset", j, onset)
         if key not in ctx.cache:
             d = directions(ctx.qdot[:, [j]], onset)[:, 0]
-            _, last = reversals(d)
-            since = np.where(last >= 0, ctx.t_s - ctx.t_s[np.maximum(last, 0)], np.inf)
-            ctx.cache[key] = (since, d)
-        return ctx.cache[key]
+            flips, _ = reversals(d)
+            ctx.cache[key] = (flips, d[flips], d[:1].copy())
+        flips, after, first = ctx.cache[key]
+        k = np.searchsorted(flips, idx, side="right") - 1
+        last = flips[np.maximum(k, 0)] if len(flips) else np.zeros(len(k), dtype=int)
+        since = np.where(k >= 0, ctx.t_s[idx] - ctx.t_s[last], np.inf)
+        d = after[np.maximum(k, 0)] if len(flips) else np.repeat(first, len(k))
+        return since, np.where(k >= 0, d, first[0] if len(first) else 1.0)
 
     def _cols(self, ctx, s, tau_ms, onset=onsets_mm_s[0], rise_ms=rise_ms):
         cols = []
+        g = ctx.gain[s.idx]  # (every axis' gain at once: a long program's are made per read)
         for j in linear_axes(ctx):
-            since, d = self._since(ctx, j, onset)
-            since = np.minimum(since[s.idx], 50.0)
+            since, d = self._since(ctx, j, onset, s.idx)
+            since = np.minimum(since, 50.0)
             decay = (1.0 - np.exp(-since / (rise_ms * 1e-3))) * np.exp(-since / (tau_ms * 1e-3))
-            cols.append(-ctx.gain[s.idx, j] * d[s.idx] * decay)
+            cols.append(-g[:, j] * d * decay)
         return np.column_stack(cols)
 
     def _scorer(self, ctx, s, r, onset):
@@ -86,9 +94,9 @@ class ReversalSpike(Effect):
             return lambda t, q: projection_gain(self._cols(ctx, s, t, onset, q), r)
         since, weight = [], []
         for j in linear_axes(ctx):
-            sj, d = self._since(ctx, j, onset)
-            since.append(sj[s.idx])
-            weight.append(-ctx.gain[s.idx, j] * d[s.idx])
+            sj, d = self._since(ctx, j, onset, s.idx)
+            since.append(sj)
+            weight.append(-ctx.gain[s.idx, j] * d)
         since, weight = np.column_stack(since), np.column_stack(weight)
         near = np.flatnonzero((since < 1.0).any(axis=1))
         since, weight, rr = since[near], weight[near], r[near]

@@ -8,7 +8,7 @@ import numpy as np
 from ...plan.files import PlanFiles
 from ...reading.context import Context, strided
 from ..align import axis_acceleration_readings
-from ..tall import Interpolated
+from ..tall import Interpolated, Made
 from .base import Samples, linear_axes
 from .friction import ReversalSpike
 from .geometry import GeometryBeyond, ScaleMismatch, Squareness
@@ -16,16 +16,12 @@ from .play import Backlash, LateralPlay
 from .servo import ServoMismatch
 
 
-#: programs longer than this many trajectory samples (17 min at 1 kHz) have their pose
-#: blocks made where they are read (:class:`~sdit_path.diagnose.tall.Interpolated`):
-#: held whole they are 42 columns on every sample, 1.1 GB an hour
-TALL_ROWS = 1_000_000
-
-
 def pose_blocks(plan: PlanFiles, ctx: Context) -> list:
     """Geometry as functions of the pose, one block per kind (squareness, scale, the
-    smooth geometry beyond the model), on the trajectory grid: arrays, or on a program
-    longer than :data:`TALL_ROWS` the same columns made where they are read."""
+    smooth geometry beyond the model), on the trajectory grid: arrays, or on a tall
+    program (:attr:`~sdit_path.reading.context.Context.tall`: held whole they are 42
+    columns on every sample, 1.1 GB an hour) the same columns made where they are read
+    (:class:`~sdit_path.diagnose.tall.Interpolated`)."""
     m, travel = plan.config.machine, plan.tested_travel()
     k = strided(ctx.n, ctx.ball_mm)
     sub = Samples(k, ctx.t_s[k])
@@ -33,7 +29,7 @@ def pose_blocks(plan: PlanFiles, ctx: Context) -> list:
     out: list = []
     for E in (Squareness(m, travel), ScaleMismatch(m, travel), GeometryBeyond(m, travel)):
         G = E.columns(ctx, sub, {})[0]
-        if ctx.n > TALL_ROWS:
+        if ctx.tall:
             out.append(Interpolated(ctx.n, k, G))
             continue
         # written column by column into the block (stacked from a list, the columns and
@@ -66,26 +62,43 @@ def dynamic_columns(ctx: Context) -> np.ndarray:
     """What any recording may hold besides geometry, in generic shapes: different servo
     lags, a drift, and reversal-locked steps and pulses (backlash, lateral play,
     friction spikes)."""
-    return np.column_stack(_dynamic_blocks(ctx))
+    return np.column_stack([b.full() if isinstance(b, Made) else b for b in _dynamic_blocks(ctx)])
 
 
-def _dynamic_blocks(ctx: Context) -> list[np.ndarray]:
-    allg = Samples(np.arange(ctx.n), ctx.t_s)
-    cols = [ServoMismatch().columns(ctx, allg, {})[0]]
-    cols.append(ctx.u_bed * (ctx.t_s / 3600.0)[:, None])
+def _dynamic_blocks(ctx: Context) -> list:
+    """The blocks of :func:`dynamic_columns`: arrays, or on a tall program the same
+    columns made where they are read (each an effect's columns at the samples asked
+    for: held whole they are 23 columns on every sample, 0.6 GB an hour)."""
+    tall = ctx.tall
+
+    def block(make):
+        if tall:
+            return Made(ctx.n, lambda idx: make(Samples(idx, ctx.t_s[idx])))
+        return make(Samples(np.arange(ctx.n), ctx.t_s))
+
+    servo = ServoMismatch()
+    cols = [block(lambda s: servo.columns(ctx, s, {})[0])]
+    cols.append(block(lambda s: ctx.u_bed[s.idx] * (ctx.t_s[s.idx] / 3600.0)[:, None]))
     # each axis deflects with its own acceleration (its structure's compliance, a mode
     # of tens of Hz quasi-static below it): microns at each start and stop, which pull
     # the start by tens of ms and the clock by a hundred ppm unless fitted.  Not
     # generic: on a trace without it the same columns take the starts and stops the
     # timing is read from
-    cols.append(axis_acceleration_readings(ctx))
+    cols.append(block(lambda s: axis_acceleration_readings(ctx, s.idx if tall else None)))
     widths = {f"width_{ctx.axis_names[j]}_um": 6.5 for j in linear_axes(ctx)
               if len(ctx.reversal_times[j])}
     if widths:
-        cols.append(Backlash().columns(ctx, allg, widths)[0])
+        cols.append(block(lambda s: Backlash().columns(ctx, s, widths)[0]))
         # a pulse at the sign change and one at a breakaway speed (25 ms later on a
         # slow reversal inside a curve)
         for onset in (ReversalSpike.onsets_mm_s[0], 0.05):
-            cols.append(ReversalSpike().columns(ctx, allg, {"tau_ms": 25.0, "onset_mm_s": onset})[0])
-        cols.append(LateralPlay().columns(ctx, allg, {})[0])
+            nl = {"tau_ms": 25.0, "onset_mm_s": onset}
+            cols.append(block(lambda s, nl=nl: ReversalSpike().columns(ctx, s, nl)[0]))
+        cols.append(block(lambda s: LateralPlay().columns(ctx, s, {})[0]))
+    if tall:  # their spreads read once per program (a pass over every row)
+        key = ("dynamic spreads",)
+        if key not in ctx.cache:
+            ctx.cache[key] = tuple(b.spread() for b in cols)
+        for b, spread in zip(cols, ctx.cache[key]):
+            b.known_spread = spread
     return cols

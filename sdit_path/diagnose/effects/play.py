@@ -150,11 +150,12 @@ class LateralPlay(Effect):
 
     def columns(self, ctx, s, nl):
         cols, labels = [], []
+        g, d = ctx.gain[s.idx], ctx.direction[s.idx]  # (every axis' at once)
         for j in linear_axes(ctx):
             if not len(ctx.reversal_times[j]):
                 continue
             for k in linear_axes(ctx):
                 if k != j:
-                    cols.append(ctx.gain[s.idx, k] * ctx.direction[s.idx, j] / 2.0)
+                    cols.append(g[:, k] * d[:, j] / 2.0)
                     labels.append(f"play_{ctx.axis_names[k]}_on_{ctx.axis_names[j]}_reversal_um")
         return (np.column_stack(cols) if cols else np.zeros((len(s.idx), 0))), tuple(labels)

@@ -108,9 +108,14 @@ class ServoMismatch(Effect):
         self._secant_cache: dict = {}
 
     def _axes(self, ctx):
-        moving = [j for j in ctx.observable
-                  if np.ptp(ctx.q[:, j]) > (1e-6 if j not in ctx.linear else 1e-3)]
-        return moving[1:], (moving[0] if moving else 0)
+        """The axes that move (the first is the reference), read once per context (a
+        long program's columns are made a block of rows at a time)."""
+        key = ("servo axes",)
+        if key not in ctx.cache:
+            moving = [j for j in ctx.observable
+                      if np.ptp(ctx.q[:, j]) > (1e-6 if j not in ctx.linear else 1e-3)]
+            ctx.cache[key] = (moving[1:], (moving[0] if moving else 0))
+        return ctx.cache[key]
 
     def rates(self, ctx: Context, common_ms: float) -> np.ndarray:
         """``(n, m)`` axis rates of the other axes as a lag difference reads them when
@@ -170,9 +175,10 @@ class ServoMismatch(Effect):
                       for j in others)
         exact = self._secants(ctx, common, hints) if any(hints) else None
         cols = []
+        g = ctx.gain[s.idx]  # (every axis' gain at once: a long program's are made per read)
         for i, j in enumerate(others):
             rate = -v[s.idx, i] if exact is None or not hints[i] else exact[s.idx, i]
-            cols.append(ctx.gain[s.idx, j] * rate)
+            cols.append(g[:, j] * rate)
         labels = tuple(f"lag_{ctx.axis_names[j]}_minus_{ctx.axis_names[ref]}_ms" for j in others)
         return np.column_stack(cols) if cols else np.zeros((len(s.idx), 0)), labels
 
