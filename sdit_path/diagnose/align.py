@@ -24,7 +24,7 @@ import scipy.fft as sfft
 from numpy.lib.stride_tricks import sliding_window_view
 
 from ..errors import RecordingError
-from ..reading.context import Context, sample_at
+from ..reading.context import Context, sample_at, sample_made
 from ..reading.rows import gradient_rows
 from .tall import Made, RowModel, is_tall
 
@@ -172,8 +172,19 @@ def _axis_acceleration_reading(ctx: Context) -> np.ndarray:
 
 def _block_mean(x: np.ndarray, w: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Weighted means of ``x`` over index blocks [edges[i], edges[i+1])."""
-    cx = np.r_[0.0, np.cumsum(np.where(w > 0, x, 0.0) * w)]
-    cw = np.r_[0.0, np.cumsum(w)]
+    return _block_mean_of(_running_sums(x, w), edges)
+
+
+def _running_sums(x: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The running sums of ``x * w`` and of ``w`` from 0 (what :func:`_block_mean` reads
+    any blocks' means from)."""
+    return np.r_[0.0, np.cumsum(np.where(w > 0, x, 0.0) * w)], np.r_[0.0, np.cumsum(w)]
+
+
+def _block_mean_of(sums: tuple[np.ndarray, np.ndarray], edges: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_block_mean` from the running sums (:func:`_running_sums`)."""
+    cx, cw = sums
     sx = cx[edges[1:]] - cx[edges[:-1]]
     sw = cw[edges[1:]] - cw[edges[:-1]]
     return np.where(sw > 0, sx / np.maximum(sw, 1e-12), 0.0), sw
@@ -228,7 +239,9 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
                               for a in range(X.shape[1])])
     x0, xT = X[0] / unit, X[-1] / unit
     valid = np.isfinite(y)
-    yv = np.where(valid, y, 0.0)
+    # the recording's running sums, read by every rate (made there, they were six arrays
+    # of the recording's length a rate)
+    sums = _running_sums(np.where(valid, y, 0.0), valid.astype(float))
     step_ppm = max(1.0, drift_s / max(T, 1e-9) * 1e6)
     rates = np.arange(-ppm_limit, ppm_limit + 0.5 * step_ppm, step_ppm)
     dt_m = float(np.median(np.diff(t_m)))
@@ -253,7 +266,7 @@ def coarse(ctx: Context, X: np.ndarray, t_m: np.ndarray, y: np.ndarray,
             continue
         edges_m = np.clip(np.round((t_m[0] + np.arange(n_m + 1) * d - t_m[0]) / dt_m).astype(int),
                           0, len(y))
-        yb, wb = _block_mean(yv, valid.astype(float), edges_m)
+        yb, wb = _block_mean_of(sums, edges_m)
         wb = wb / max(wb.max(), 1e-12)
         wy = wb * yb
         L = n_m - nb + 1
@@ -327,19 +340,14 @@ def _rate_at(ctx: Context, X: np.ndarray, beta: np.ndarray, tau: np.ndarray) -> 
     t = ctx.t_s
     if not isinstance(X, RowModel):
         return sample_at(t, np.gradient(X @ beta, t), tau)
-    n = len(t)
-    dt = (t[-1] - t[0]) / max(n - 1, 1)
-    x = np.clip((tau - t[0]) / dt, 0.0, n - 1.000001)
-    i = x.astype(int)
-    nxt = np.minimum(i + 1, n - 1)
-    need = np.unique(np.r_[i, nxt])
-    around = np.unique(np.clip(np.r_[need - 1, need, need + 1], 0, n - 1))
-    f = X.product_at(around, beta)[:, None]
-    rate = gradient_rows(t, ctx.uniform_step(), lambda r: f[np.searchsorted(around, r)], need)[:, 0]
-    frac = x - i
-    out = rate[np.searchsorted(need, i)] * (1 - frac)
-    out += rate[np.searchsorted(need, nxt)] * frac
-    return out
+
+    def rates(need):
+        around = np.unique(np.clip(np.r_[need - 1, need, need + 1], 0, ctx.n - 1))
+        f = X.product_at(around, beta)[:, None]
+        return gradient_rows(t, ctx.uniform_step(), lambda r: f[np.searchsorted(around, r)],
+                             need)[:, 0]
+
+    return sample_made(t, tau, rates)
 
 
 def _timing_std(JJ: np.ndarray, r: np.ndarray) -> tuple[float, float]:

@@ -128,10 +128,10 @@ def stillness(t_s: np.ndarray, phase: np.ndarray, t_m: np.ndarray, y: np.ndarray
     return int(sum(d)), len(d), (float(np.mean(m)) if m else 0.0)
 
 
-def _unfit(plan: PlanFiles, program: str, trace: Trace) -> bool:
+def _unfit(plan: PlanFiles, program: str, trace: Trace, ctx=None) -> bool:
     span = float(trace.t_s[-1] - trace.t_s[0]) if len(trace.t_s) > 1 else 0.0
     try:
-        check_span(span, float(plan.trajectory(program).t_s[-1]))
+        check_span(span, float((ctx or plan.trajectory(program)).t_s[-1]))
     except AlignmentError:
         return True
     return False
@@ -161,7 +161,7 @@ def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
     whose durations would."""
     # the program's own duration first (every program's trajectory is read only to
     # name the others in a refusal: a control's motion of each is minutes of work)
-    if _unfit(plan, program, trace):
+    if _unfit(plan, program, trace, ctx):
         fits = plausible_programs(plan, trace)
         why = dict(fits)
         others = [p for p, w in fits if not w]
@@ -182,7 +182,7 @@ def align_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
         raise RecordingError(f"{label}: {exc}") from None
     tau = al.program_time(t_m)
     inside = (tau >= 0.0) & (tau <= float(ctx.t_s[-1]))
-    still, dwells, moving_still = stillness(ctx.t_s, plan.trajectory(program).phase, t_m, y,
+    still, dwells, moving_still = stillness(ctx.t_s, ctx.phase, t_m, y,
                                             al, noise)
     # a recording quiet in most of the motion as well (a slow feed, a small set-up) is
     # not judged by its dwells alone: a genuine one leaves some of its dwells not still

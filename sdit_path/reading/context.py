@@ -259,19 +259,38 @@ def strided(n: int, points_mm: np.ndarray, spacing_mm: float = 0.5, max_stride: 
     return k if k[-1] == n - 1 else np.r_[k, n - 1]
 
 
-def sample_at(t: np.ndarray, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
-    """Rows of ``X`` (on the uniform grid ``t``) linearly interpolated at ``tau``."""
+def sample_rows(t: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where :func:`sample_at` reads the uniform grid ``t`` at ``tau``: the rows below
+    and above each time and the fraction of the way between them."""
     dt = (t[-1] - t[0]) / max(len(t) - 1, 1)
     x = np.clip((tau - t[0]) / dt, 0.0, len(t) - 1.000001)
     i = x.astype(int)
-    f = (x - i)[:, None] if X.ndim == 2 else x - i
+    return i, np.minimum(i + 1, len(t) - 1), x - i
+
+
+def sample_at(t: np.ndarray, X: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """Rows of ``X`` (on the uniform grid ``t``) linearly interpolated at ``tau``."""
+    i, nxt, f = sample_rows(t, tau)
+    f = f[:, None] if X.ndim == 2 else f
     # the same arithmetic as X[i] * (1 - f) + X[i + 1] * f, in place (two gathers of a
     # tall matrix instead of four temporaries)
     out = X[i]
     out *= 1 - f
-    nxt = np.minimum(i + 1, len(t) - 1)
     for a in range(0, len(out), _ROWS):  # the next rows a block at a time: no second copy
         out[a:a + _ROWS] += X[nxt[a:a + _ROWS]] * f[a:a + _ROWS]
+    return out
+
+
+def sample_made(t: np.ndarray, tau: np.ndarray, rows) -> np.ndarray:
+    """:func:`sample_at` of a ``X`` not held: ``rows(r)`` makes its rows ``r`` (increasing,
+    each once), those the interpolation reads; the same arithmetic."""
+    i, nxt, f = sample_rows(t, tau)
+    need = np.unique(np.r_[i, nxt])
+    made = rows(need)
+    out = made[np.searchsorted(need, i)]
+    f = f[:, None] if out.ndim == 2 else f
+    out *= 1 - f
+    out += made[np.searchsorted(need, nxt)] * f
     return out
 
 

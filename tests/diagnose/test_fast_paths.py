@@ -385,6 +385,39 @@ def test_a_long_programs_context_made_where_read_is_the_context_held_whole(recor
     assert tall.observable == whole.observable
 
 
+def test_a_long_programs_effects_read_what_they_read_on_the_context_held_whole(
+        recorded, monkeypatch):
+    """The effects whose columns read a tall program's context where it is made (the
+    rates, gains, directions, reversals, labels) or filter it a block at a time (a
+    mode's response) give the columns they give on the context held whole, to the bit:
+    forced on GOLD_A, at the samples of a recording."""
+    from sdit_path.diagnose import effects
+    from sdit_path.reading import context as context_mod
+
+    plan, ctx, _, _, t_m, _ = recorded
+    monkeypatch.setattr(context_mod, "TALL_ROWS", 0)
+    tctx = build_context(plan, PROGRAM)
+    tau = np.sort(np.random.default_rng(5).uniform(0.0, float(ctx.t_s[-1]), 3000))
+    s = Samples(context_mod.nearest_samples(ctx, tau), tau)
+    x = ctx.axis_names
+    cases = [(effects.ServoMismatch(), {}), (effects.ServoMismatch(), {"common_lag_ms": 1.7}),
+             (effects.ServoLag(), {"tau_ms": 12.0}),
+             (effects.ContourSmoothing(), {"sigma_ms": 8.0}),
+             (effects.ContourSmoothing(), {"window_mm": 3.0}),
+             (effects.ReversalSpike(), {"tau_ms": 25.0, "onset_mm_s": 0.05}),
+             (effects.Backlash(), {f"width_{a}_um": 6.5 for a in x[:3]}),
+             (effects.LateralPlay(), {}), (effects.StickSlip(), None),
+             (effects.ThermalDrift(), {}), (effects.SetupOffset(), {})]
+    for eff, nl in cases:
+        nl = eff.search(ctx, s, np.random.default_rng(6).normal(size=len(tau))) \
+            if nl is None else nl
+        a, b = eff.columns(ctx, s, nl)[0], type(eff)().columns(tctx, s, nl)[0]
+        assert np.array_equal(a, b), (eff.name, nl)
+    for axes in (None, [linear_axes(ctx)[1]]):
+        a = Vibration()._mode_columns(ctx, s, 37.0, 0.05, axes=axes)
+        assert np.array_equal(a, Vibration()._mode_columns(tctx, s, 37.0, 0.05, axes=axes))
+
+
 @pytest.mark.slow
 def test_a_long_programs_model_made_where_read_is_the_model_held_whole(recorded, monkeypatch):
     """A tall program (longer than TALL_ROWS) has its generic and alignment columns made

@@ -85,6 +85,20 @@ def memo(cache: dict, ctx: Context, value: float, make, digits: int = 9):
     return cache[key][1]
 
 
+def filtered_blocks(b, a, n: int, rows, zi, block: int = 1 << 16):
+    """``lfilter(b, a, X, axis=0, zi=zi)`` of ``X : (n, k)`` a block of samples at a
+    time, ``rows(start, stop)`` giving those rows of ``X``: yields ``(start, stop, y)``,
+    the filter's state carried from block to block, so the same numbers as filtered
+    whole (where a tall program's whole signal, its output and the filter's copies are
+    hundreds of MB)."""
+    from scipy.signal import lfilter
+
+    for start in range(0, n, block):
+        stop = min(start + block, n)
+        y, zi = lfilter(b, a, rows(start, stop), axis=0, zi=zi)
+        yield start, stop, y
+
+
 def projection_gain(cols: np.ndarray, r: np.ndarray) -> float:
     """Reduction of ``|r|^2`` by least squares on ``cols`` (fitted beside
     :func:`fitted_beside`'s columns, if any)."""

@@ -25,7 +25,6 @@ def pose_blocks(plan: PlanFiles, ctx: Context) -> list:
     m, travel = plan.config.machine, plan.tested_travel()
     k = strided(ctx.n, ctx.ball_mm)
     sub = Samples(k, ctx.t_s[k])
-    at = np.arange(ctx.n)
     out: list = []
     for E in (Squareness(m, travel), ScaleMismatch(m, travel), GeometryBeyond(m, travel)):
         G = E.columns(ctx, sub, {})[0]
@@ -35,6 +34,7 @@ def pose_blocks(plan: PlanFiles, ctx: Context) -> list:
         # written column by column into the block (stacked from a list, the columns and
         # the block were held at once: 2 GB for an hour's 36 columns of geometry)
         block = np.empty((ctx.n, G.shape[1]))
+        at = np.arange(ctx.n)
         for i in range(G.shape[1]):
             block[:, i] = np.interp(at, k, G[:, i])
         out.append(block)

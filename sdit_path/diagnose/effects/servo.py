@@ -7,7 +7,7 @@ from types import MappingProxyType
 import numpy as np
 
 from ...reading.context import Context
-from .base import Effect, grid_search, memo, projection_gain
+from .base import Effect, filtered_blocks, grid_search, memo, projection_gain
 
 
 class ServoLag(Effect):
@@ -82,6 +82,12 @@ def lagged_radial_um(ctx: Context, tau_s: float) -> np.ndarray:
     dt = float(np.median(np.diff(ctx.t_s)))
     k = 2.0 * tau_s / dt
     p0 = ctx.ball_mm[0]
+    if ctx.tall:  # (a block of samples at a time, the same numbers)
+        out = np.empty(ctx.n)
+        for a, b, y in filtered_blocks([1.0, 1.0], [1.0 + k, 1.0 - k], ctx.n,
+                                       lambda a, b: ctx.ball_mm[a:b] - p0, np.zeros((1, 3))):
+            out[a:b] = (np.linalg.norm(y + p0 - ctx.pivot_mm, axis=1) - ctx.length_mm[a:b]) * 1e3
+        return out
     lagged = lfilter([1.0, 1.0], [1.0 + k, 1.0 - k], ctx.ball_mm - p0, axis=0) + p0
     return (np.linalg.norm(lagged - ctx.pivot_mm, axis=1) - ctx.length_mm) * 1e3
 
@@ -132,6 +138,8 @@ class ServoMismatch(Effect):
 
     def _lagged_rates(self, ctx, common_ms):
         others, _ = self._axes(ctx)
+        if ctx.tall and common_ms > 0:
+            return self._lagged_rates_in_blocks(ctx, common_ms, others)
         v = ctx.qdot[:, others].astype(float)
         if common_ms > 0 and len(v):
             from scipy.signal import lfilter
@@ -143,6 +151,33 @@ class ServoMismatch(Effect):
             shift = int(round(common_ms * 1e-3 / dt))
             v = np.concatenate([v[shift:], np.repeat(v[-1:], min(shift, len(v)), axis=0)])
         return v
+
+    @staticmethod
+    def _lagged_rates_in_blocks(ctx, common_ms, others):
+        """:meth:`_lagged_rates` of a tall program: both lags a block of samples at a
+        time, each from rest at its first input (the same numbers; whole, the rates and
+        the filters' copies are 0.3 GB an hour), shifted in place."""
+        from scipy.signal import lfilter
+
+        dt = (ctx.t_s[-1] - ctx.t_s[0]) / max(ctx.n - 1, 1)
+        k = 2.0 * common_ms * 1e-3 / dt
+        b, a = [1.0, 1.0], [1.0 + k, 1.0 - k]
+        out = np.empty((ctx.n, len(others)))
+        v0 = ctx.qdot[0][others]
+        w0, zi = None, np.zeros((1, len(others)))
+        for start, stop, y in filtered_blocks(b, a, ctx.n,
+                                              lambda i, j: ctx.qdot[i:j][:, others] - v0,
+                                              np.zeros((1, len(others)))):
+            w = y + v0
+            w0 = w[0].copy() if w0 is None else w0
+            y, zi = lfilter(b, a, w - w0, axis=0, zi=zi)
+            out[start:stop] = y + w0
+        shift = int(round(common_ms * 1e-3 / dt))
+        if shift:
+            last = out[-1].copy()
+            out[:-shift] = out[shift:]
+            out[-min(shift, ctx.n):] = last
+        return out
 
     def search(self, ctx, s, r):
         if not self._axes(ctx)[0]:
@@ -162,7 +197,9 @@ class ServoMismatch(Effect):
     def columns(self, ctx, s, nl):
         others, ref = self._axes(ctx)
         common = float(nl.get("common_lag_ms", 0.0))
-        v = self.rates(ctx, common)
+        # without a common lag the rates are the axes' own: a tall program's read at the
+        # rows asked for (held whole, two axes' are 54 MB an hour)
+        v = ctx.qdot[s.idx][:, others] if common == 0 and ctx.tall else self.rates(ctx, common)[s.idx]
         # axis error -qdot * lag to first order; um of reading per ms of lag.  Where the
         # search has found a lag difference h, the column is the exact error of that
         # difference divided by it (a secant: fitted h gives the error itself), because
@@ -177,7 +214,7 @@ class ServoMismatch(Effect):
         cols = []
         g = ctx.gain[s.idx]  # (every axis' gain at once: a long program's are made per read)
         for i, j in enumerate(others):
-            rate = -v[s.idx, i] if exact is None or not hints[i] else exact[s.idx, i]
+            rate = -v[:, i] if exact is None or not hints[i] else exact[s.idx, i]
             cols.append(g[:, j] * rate)
         labels = tuple(f"lag_{ctx.axis_names[j]}_minus_{ctx.axis_names[ref]}_ms" for j in others)
         return np.column_stack(cols) if cols else np.zeros((len(s.idx), 0)), labels

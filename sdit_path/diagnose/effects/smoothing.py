@@ -76,6 +76,18 @@ def time_filtered_radial_um(ctx: Context, sigma_s: float) -> np.ndarray:
 
     dt = float(np.median(np.diff(ctx.t_s)))
     p0 = ctx.ball_mm[0]
+    if ctx.tall:
+        # a block of samples at a time, each with the filter's reach on either side (so
+        # every output sample sums the same inputs as the whole: the same numbers)
+        reach = int(6.0 * sigma_s / dt + 0.5) + 1
+        out = np.empty(ctx.n)
+        for a in range(0, ctx.n, 1 << 16):
+            b = min(a + (1 << 16), ctx.n)
+            lo, hi = max(a - reach, 0), min(b + reach, ctx.n)
+            smooth = gaussian_filter1d(ctx.ball_mm[lo:hi] - p0, sigma_s / dt, axis=0,
+                                       mode="nearest", truncate=6.0)[a - lo:b - lo] + p0
+            out[a:b] = (np.linalg.norm(smooth - ctx.pivot_mm, axis=1) - ctx.length_mm[a:b]) * 1e3
+        return out
     smooth = gaussian_filter1d(ctx.ball_mm - p0, sigma_s / dt, axis=0, mode="nearest",
                                truncate=6.0) + p0
     return (np.linalg.norm(smooth - ctx.pivot_mm, axis=1) - ctx.length_mm) * 1e3

@@ -6,8 +6,8 @@ from types import MappingProxyType
 
 import numpy as np
 
-from ...reading.context import sample_at
-from .base import Effect, gain2, linear_axes, projection_gain
+from ...reading.context import sample_at, sample_made
+from .base import Effect, filtered_blocks, gain2, linear_axes, projection_gain
 
 
 def _mode_response(acc: np.ndarray, dt: float, f_hz: float, zeta: float) -> np.ndarray:
@@ -26,6 +26,25 @@ def _mode_response(acc: np.ndarray, dt: float, f_hz: float, zeta: float) -> np.n
     zi = zi * acc[0] if acc.ndim == 1 else np.outer(zi, acc[0])
     y, _ = lfilter(b, a, acc, axis=0, zi=zi)
     return y
+
+
+def _mode_response_rows(acc: np.ndarray, dt: float, f_hz: float, zeta: float,
+                        rows: np.ndarray, block: int = 1 << 16) -> np.ndarray:
+    """The rows ``rows`` (increasing) of ``_mode_response(acc, ...)`` for ``acc : (n,
+    k)``, filtered a block of samples at a time with the filter's state carried from
+    block to block (the same numbers; the response on every sample of an hour is 80 MB,
+    and the filter's copies as much again)."""
+    from scipy.signal import cont2discrete, lfilter_zi
+
+    w = 2 * np.pi * f_hz
+    b, a, _ = cont2discrete(([w * w], [1.0, 2 * zeta * w, w * w]), dt, method="zoh")
+    b = np.ravel(b)
+    out = np.empty((len(rows), acc.shape[1]))
+    for start, stop, y in filtered_blocks(b, a, len(acc), lambda i, j: acc[i:j],
+                                          np.outer(lfilter_zi(b, a), acc[0]), block):
+        lo, hi = np.searchsorted(rows, (start, stop))
+        out[lo:hi] = y[rows[lo:hi] - start]
+    return out
 
 
 #: a mode's ringing is read when its best fit beyond the deflection gains this many
@@ -63,7 +82,11 @@ class Vibration(Effect):
         axes = linear_axes(ctx) if axes is None else list(axes)
         # every axis filtered at once and read at the samples with one interpolation
         # (the grid is uniform): np.interp per axis takes as long as the filter
-        x = _mode_response(self._accs(ctx, axes), dt, f_hz, zeta)
+        acc = self._accs(ctx, axes)
+        if ctx.tall:  # (the response made at the rows read)
+            return ctx.gain[idx][:, axes] * sample_made(
+                ctx.t_s, tau, lambda rows: _mode_response_rows(acc, dt, f_hz, zeta, rows))
+        x = _mode_response(acc, dt, f_hz, zeta)
         return ctx.gain[idx][:, axes] * sample_at(ctx.t_s, x, tau)
 
     def _accs(self, ctx, axes):
