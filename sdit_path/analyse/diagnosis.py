@@ -29,12 +29,13 @@ def diagnose_recording(plan: PlanFiles, program: str, trace: Trace, label: str,
     release_freed_memory()
     with mapping_large_blocks() if ctx.tall else contextlib.nullcontext():
         step("matching the recording to its program")
-        rec = align_recording(plan, program, trace, label, ctx)
+        # (the alignment kept, the recording as aligned let go: a copy of it)
+        first = align_recording(plan, program, trace, label, ctx).alignment
         release_freed_memory()  # (what the matching freed)
         try:
             # with a geometric model the search is made again with what it predicts
             result = diagnose(plan, program, trace, model, progress=step, ctx=ctx,
-                              alignment=rec.alignment if model is None else None)
+                              alignment=first if model is None else None)
         except AlignmentError as exc:
             raise AlignmentError(f"{label}: {exc}") from None
     return result, ctx

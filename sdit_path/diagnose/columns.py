@@ -18,6 +18,7 @@ from ..sim.simulate import error_values
 from .align import Alignment, generic_columns, lsq
 from .effects import Effect, Samples, fitted_beside
 from .fitting import serial_correlation
+from .tall import BLOCK_ROWS
 
 log = logging.getLogger(__name__)
 
@@ -124,6 +125,22 @@ def needed_blocks(ctx: Context, expected: np.ndarray, t_m: np.ndarray, y: np.nda
     return keep
 
 
+def every_sample(eff: Effect, ctx: Context, nl: dict) -> tuple[np.ndarray, tuple]:
+    """``eff.columns`` on every trajectory sample; on a tall program a block of samples
+    at a time (each row is made from its own sample: the same numbers, without every
+    sample's temporaries at once, several times the columns themselves)."""
+    if not ctx.tall:
+        return eff.columns(ctx, Samples(np.arange(ctx.n), ctx.t_s), nl)
+    out, labels = None, ()
+    for a in range(0, ctx.n, BLOCK_ROWS):
+        idx = np.arange(a, min(a + BLOCK_ROWS, ctx.n))
+        cols, labels = eff.columns(ctx, Samples(idx, ctx.t_s[idx]), nl)
+        if out is None:
+            out = np.empty((ctx.n, cols.shape[1]))
+        out[a:a + len(idx)] = cols
+    return out, labels
+
+
 def shape_columns(ctx, lib, findings) -> np.ndarray:
     """The first-order change of each finding's columns with its continuous nonlinear
     parameters (a pulse's rise and decay, a play's width, a mode's frequency): fitted
@@ -131,7 +148,6 @@ def shape_columns(ctx, lib, findings) -> np.ndarray:
     uncertainty takes in what the shape leaves open instead of holding the shape found
     at the first timing.  Parameters profiled with the timing and discrete ones are left
     out."""
-    allg = Samples(np.arange(ctx.n), ctx.t_s)
     by = {e.name: e for e in lib}
     out = []
     for f in locked_findings(lib, findings):
@@ -139,22 +155,26 @@ def shape_columns(ctx, lib, findings) -> np.ndarray:
         skip = set(getattr(eff, "discrete", ())) | (
             {eff.timing_parameter[0]} if eff.timing_parameter else set())
         try:
-            C = eff.columns(ctx, allg, f.nonlinear)[0]
+            C = every_sample(eff, ctx, f.nonlinear)[0]
         except (ValueError, np.linalg.LinAlgError):
             continue
+        shape, largest = C.shape, max(float(np.abs(C).max()), 1e-300) if C.size else 1e-300
+        del C  # (its shape and size are what is read)
         for key, value in f.nonlinear.items():
             if key in skip or isinstance(value, bool) or not isinstance(value, (int, float)):
                 continue
             h = 0.01 * abs(value) if value else 0.01
             try:
-                up = eff.columns(ctx, allg, {**f.nonlinear, key: value + h})[0]
-                down = eff.columns(ctx, allg, {**f.nonlinear, key: value - h})[0]
+                up = every_sample(eff, ctx, {**f.nonlinear, key: value + h})[0]
+                down = every_sample(eff, ctx, {**f.nonlinear, key: value - h})[0]
             except (ValueError, np.linalg.LinAlgError):
                 continue
-            if up.shape != C.shape or not (np.isfinite(up).all() and np.isfinite(down).all()):
+            if up.shape != shape or not (np.isfinite(up).all() and np.isfinite(down).all()):
                 continue
-            Dk = (up - down) / (2 * h)
-            keep = np.abs(Dk).max(axis=0) > 1e-9 * max(float(np.abs(C).max()), 1e-300)
+            Dk = up - down  # (up - down) / (2 h), the division in place
+            del up, down
+            Dk /= 2 * h
+            keep = np.abs(Dk).max(axis=0) > 1e-9 * largest
             if keep.any():
                 out.append(Dk[:, keep])
     return np.column_stack(out) if out else np.zeros((ctx.n, 0))
@@ -170,10 +190,9 @@ def locked_findings(lib: list[Effect], findings: list) -> list:
 def model_columns(ctx, lib, expected, findings) -> np.ndarray:
     """The expected reading, a constant and the columns of every finding that is
     :func:`timed`, in that order."""
-    allg = Samples(np.arange(ctx.n), ctx.t_s)
     by = {e.name: e for e in lib}
     return np.column_stack([expected[:, None], np.ones((ctx.n, 1))]
-                           + [by[f.effect].columns(ctx, allg, f.nonlinear)[0]
+                           + [every_sample(by[f.effect], ctx, f.nonlinear)[0]
                               for f in locked_findings(lib, findings)])
 
 

@@ -113,6 +113,7 @@ def diagnose(plan: PlanFiles, program: str, trace: Trace, model: ErrorSet | None
     X = model_columns(ctx, lib, expected, first.findings)
     pose = needed_blocks(ctx, expected, t_m, y, al, X[:, 2:],
                           pose_blocks(plan, ctx), options.bic_margin)
+    del X  # (what was found, on every sample: the settling makes its own)
     first_al = al
     al, jump, names = settle_timing(ctx, lib, expected, t_m, y, pose, first.findings, first_al)
     step("realigned with the findings")

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..reading.context import Context, nearest_samples, sample_at
 from .align import Alignment, SetupStep, coefficients_at, generic_columns, lsq, refine
-from .columns import TrialModel, model_columns, shape_columns
+from .columns import TrialModel, every_sample, model_columns, shape_columns
 from .effects import Effect, Samples, projection_gain
 from .results import ProfileOpen
 
@@ -74,7 +74,6 @@ def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: n
     uncertainties."""
     changed = False
     widen = [0.0, 0.0]
-    allg = Samples(np.arange(ctx.n), ctx.t_s)
     yc = y if jump is None else y - jump.reading_um(ctx, al, t_m)
     n_fit = min(int(np.isfinite(yc).sum()), PROFILE_SAMPLES)
     by = {e.name: e for e in lib}
@@ -93,7 +92,7 @@ def profile_timing(ctx: Context, lib: list[Effect], expected: np.ndarray, t_m: n
             c = float(c)
             if c not in fits:
                 nl = {**f.nonlinear, key: c}
-                cols, labels = eff.columns(ctx, allg, nl)
+                cols, labels = every_sample(eff, ctx, nl)
                 X = model.with_columns(cols)
                 fits[c] = refine(ctx, X, t_m, yc, al.offset_s, al.clock_ppm, iterations=4,
                                  max_samples=PROFILE_SAMPLES, check=False)

@@ -99,13 +99,24 @@ class Rows:
         at = np.asarray(r)
         if at.dtype == bool:
             at = np.flatnonzero(at)
-        vals = self.rows(at.ravel())
+        vals = self._rows_in_blocks(at.ravel())
         if at.ndim == 0:
             vals = vals[0]
         return vals if every else vals[..., c]
 
+    def _rows_in_blocks(self, idx: np.ndarray, block: int = 1 << 16) -> np.ndarray:
+        """:meth:`rows`, a block of them at a time where many are asked for (each row is
+        made from its own sample: the same numbers, without the temporaries of all of
+        them at once)."""
+        if len(idx) <= block:
+            return self.rows(idx)
+        out = np.empty((len(idx), self.shape[1]))
+        for a in range(0, len(idx), block):
+            out[a:a + block] = self.rows(idx[a:a + block])
+        return out
+
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
-        whole = self.rows(np.arange(self.shape[0]))
+        whole = self._rows_in_blocks(np.arange(self.shape[0]))
         return whole if dtype is None else whole.astype(dtype)
 
 

@@ -417,8 +417,11 @@ def test_a_set_point_filter_shortens_a_circle_as_a_gaussian_does():
     angle = np.where(t < 10.0, 0.0, (t - 10.0) * v / R)
     ball = np.column_stack([R * np.cos(angle), R * np.sin(angle), np.zeros_like(t)])
     ctx = SimpleNamespace(t_s=t, ball_mm=ball, pivot_mm=np.zeros(3),
-                          length_mm=np.full(len(t), R))
+                          length_mm=np.full(len(t), R), n=len(t), tall=False)
     radial = time_filtered_radial_um(ctx, sigma)
+    # a tall program's, filtered a block of samples at a time: the same numbers
+    assert np.array_equal(time_filtered_radial_um(SimpleNamespace(**{**vars(ctx), "tall": True}),
+                                                  sigma), radial)
     exact = R * (np.exp(-0.5 * (v * sigma / R) ** 2) - 1.0) * 1e3
     steady = (t > 12.0) & (t < 58.0)
     assert np.max(np.abs(radial[steady] - exact)) < 1e-4, (radial[steady].min(), exact)

@@ -389,9 +389,11 @@ def test_a_long_programs_effects_read_what_they_read_on_the_context_held_whole(
         recorded, monkeypatch):
     """The effects whose columns read a tall program's context where it is made (the
     rates, gains, directions, reversals, labels) or filter it a block at a time (a
-    mode's response) give the columns they give on the context held whole, to the bit:
-    forced on GOLD_A, at the samples of a recording."""
+    mode's response, the lags, the smoothing) give the columns they give on the context
+    held whole, to the bit: forced on GOLD_A, at the samples of a recording, and on
+    every sample made a block of samples at a time."""
     from sdit_path.diagnose import effects
+    from sdit_path.diagnose.columns import every_sample
     from sdit_path.reading import context as context_mod
 
     plan, ctx, _, _, t_m, _ = recorded
@@ -400,7 +402,10 @@ def test_a_long_programs_effects_read_what_they_read_on_the_context_held_whole(
     tau = np.sort(np.random.default_rng(5).uniform(0.0, float(ctx.t_s[-1]), 3000))
     s = Samples(context_mod.nearest_samples(ctx, tau), tau)
     x = ctx.axis_names
+    hints = {f"second_order_lag_{a}": 0.3 + 0.2 * i for i, a in enumerate(x[1:3])}
     cases = [(effects.ServoMismatch(), {}), (effects.ServoMismatch(), {"common_lag_ms": 1.7}),
+             (effects.ServoMismatch(), {"common_lag_ms": 1.7, **hints}),
+             (effects.ServoMismatch(), {"common_lag_ms": 0.0, **hints}),
              (effects.ServoLag(), {"tau_ms": 12.0}),
              (effects.ContourSmoothing(), {"sigma_ms": 8.0}),
              (effects.ContourSmoothing(), {"window_mm": 3.0}),
@@ -413,6 +418,9 @@ def test_a_long_programs_effects_read_what_they_read_on_the_context_held_whole(
             if nl is None else nl
         a, b = eff.columns(ctx, s, nl)[0], type(eff)().columns(tctx, s, nl)[0]
         assert np.array_equal(a, b), (eff.name, nl)
+        # on every sample, a block of samples at a time (what the timing's model reads)
+        whole = eff.columns(ctx, Samples(np.arange(ctx.n), ctx.t_s), nl)[0]
+        assert np.array_equal(every_sample(type(eff)(), tctx, nl)[0], whole), (eff.name, nl)
     for axes in (None, [linear_axes(ctx)[1]]):
         a = Vibration()._mode_columns(ctx, s, 37.0, 0.05, axes=axes)
         assert np.array_equal(a, Vibration()._mode_columns(tctx, s, 37.0, 0.05, axes=axes))

@@ -231,6 +231,8 @@ class ServoMismatch(Effect):
 
         others, _ = self._axes(ctx)
         dt = (ctx.t_s[-1] - ctx.t_s[0]) / max(ctx.n - 1, 1)
+        if ctx.tall:
+            return self._lag_differences_in_blocks(ctx, common_ms, hints, others, dt)
         q = ctx.q[:, others].astype(float)
         q = q - q[0]
 
@@ -248,6 +250,39 @@ class ServoMismatch(Effect):
         shift = int(round(common_ms * 1e-3 / dt))
         if shift:
             out = np.concatenate([out[shift:], np.repeat(out[-1:], min(shift, len(out)), axis=0)])
+        return out
+
+    @staticmethod
+    def _lag_differences_in_blocks(ctx, common_ms, hints, others, dt):
+        """:meth:`_lag_differences` of a tall program: each lag a block of samples at a
+        time from rest (the same numbers), shifted in place."""
+        from scipy.signal import lfilter
+
+        out = np.zeros((ctx.n, len(others)))
+        q0 = ctx.q[0, others]
+        for i, h in enumerate(hints):
+            if not h:
+                continue
+            lags = [tau for tau in (common_ms, common_ms + h)]
+            coef = [([1.0, 1.0], [1.0 + 2.0 * tau * 1e-3 / dt, 1.0 - 2.0 * tau * 1e-3 / dt])
+                    for tau in lags]
+            zi = [np.zeros(1), np.zeros(1)]
+            for start in range(0, ctx.n, 1 << 16):
+                stop = min(start + (1 << 16), ctx.n)
+                x = ctx.q[start:stop, others[i]] - q0[i]
+                ys = []
+                for m, tau in enumerate(lags):
+                    if tau <= 0:
+                        ys.append(x)
+                        continue
+                    y, zi[m] = lfilter(*coef[m], x, zi=zi[m])
+                    ys.append(y)
+                out[start:stop, i] = (ys[1] - ys[0]) / (h * 1e-3)
+        shift = int(round(common_ms * 1e-3 / dt))
+        if shift:
+            last = out[-1].copy()
+            out[:-shift] = out[shift:]
+            out[-min(shift, ctx.n):] = last
         return out
 
     def from_fit(self, nl, coef, labels):

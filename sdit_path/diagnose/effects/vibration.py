@@ -228,7 +228,8 @@ class Vibration(Effect):
             g = ctx.gain[s.idx, j]
             grid = np.zeros(n)
             grid[k] = (r * g)[order]
-            spec = np.abs(np.fft.rfft(grid * win, nfft))
+            grid *= win  # (in place: an hour's grid is 27 MB)
+            spec = np.abs(np.fft.rfft(grid, nfft))
             i = int(np.flatnonzero(band)[np.argmax(spec[band])])
             df = rate / nfft
             cand = i * df + np.linspace(-1.5 * df, 1.5 * df, 31)
