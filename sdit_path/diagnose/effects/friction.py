@@ -60,14 +60,19 @@ class ReversalSpike(Effect):
     def _since(ctx, j, onset, idx):
         """At the samples ``idx``: the time since axis j last reversed, a reversal
         counted once the axis moves faster than ``onset`` (mm/s) the other way (inf
-        before the first), and the direction since then.  What is kept is the
-        reversals and the direction after each (the direction is constant between
-        them): a few numbers where the arrays on every sample were 50 MB an hour."""
+        before the first), and the direction since then: kept on every sample, or on a
+        tall program as the reversals and the direction after each (the direction is
+        constant between them; on every sample they are 50 MB an hour), the same
+        numbers."""
         key = ("reversal_onset", j, onset)
         if key not in ctx.cache:
             d = directions(ctx.qdot[:, [j]], onset)[:, 0]
-            flips, _ = reversals(d)
-            ctx.cache[key] = (flips, d[flips], d[:1].copy())
+            flips, last = reversals(d)
+            ctx.cache[key] = (flips, d[flips], d[:1].copy()) if ctx.tall else (
+                np.where(last >= 0, ctx.t_s - ctx.t_s[np.maximum(last, 0)], np.inf), d)
+        if not ctx.tall:
+            since, d = ctx.cache[key]
+            return since[idx], d[idx]
         flips, after, first = ctx.cache[key]
         k = np.searchsorted(flips, idx, side="right") - 1
         last = flips[np.maximum(k, 0)] if len(flips) else np.zeros(len(k), dtype=int)
