@@ -14,11 +14,11 @@ from ..errormodel.errorset import ErrorSet
 from ..machine.kinematics import Kinematics
 from ..plan.files import PlanFiles
 from ..reading.context import Context, nearest_samples, sample_at, strided
+from ..reading.rows import BLOCK_ROWS
 from ..sim.simulate import error_values
 from .align import Alignment, generic_columns, lsq
 from .effects import Effect, Samples, fitted_beside
 from .fitting import serial_correlation
-from .tall import BLOCK_ROWS
 
 log = logging.getLogger(__name__)
 

@@ -15,11 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..reading.rows import interp_rows
-
-#: rows made at a time where sums run over every row (65,536 rows of eighty columns:
-#: 42 MB)
-BLOCK_ROWS = 1 << 16
+from ..reading.rows import BLOCK_ROWS, interp_rows
 
 
 class Interpolated:

@@ -14,7 +14,7 @@ import numpy as np
 from ..machine.kinematics import Kinematics
 from ..plan.files import PlanFiles
 from ..timing.trajectory import axis_values_rad
-from .rows import (GridRows, Labels, RateRows, Rows, RunEdge, UnitRows, gradient_rows,
+from .rows import (GridRows, Labels, RateRows, Rows, RunEdge, UnitRows, blocks, gradient_rows,
                    uniform_step)
 from .written import written_deviation_um
 
@@ -309,15 +309,6 @@ def nearest_samples(ctx: "Context", tau: np.ndarray) -> np.ndarray:
 #: direction, the axis rates and the gains are 0.23 GB an hour, and their making twice that
 TALL_ROWS = 1_000_000
 
-#: rows at a time where a tall program's arrays are made
-_BLOCK = 1 << 16
-
-
-def _blocks(n: int, first: int = 0):
-    for a in range(first, n, _BLOCK):
-        yield a, min(a + _BLOCK, n)
-
-
 def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> Context:
     """``velocity_eps``: axis speed (mm/s or rad/s) below which an axis counts as
     standing still when its direction is tracked."""
@@ -333,7 +324,7 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     u: np.ndarray | Rows
     if tall:  # (the same arithmetic row by row, a block of rows at a time)
         length = np.empty(n)
-        for a, b in _blocks(n):
+        for a, b in blocks(n):
             length[a:b] = np.linalg.norm(ball[a:b] - pivot, axis=1)
         u = UnitRows(ball, pivot, length)
     else:
@@ -364,7 +355,7 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
         qdot = RateRows(q, t)
         speed = np.empty(n)
         step = uniform_step(t)
-        for a, b in _blocks(n):
+        for a, b in blocks(n):
             v = gradient_rows(t, step, lambda i: ball[i], np.arange(a, b))
             speed[a:b] = np.linalg.norm(v, axis=1)
         direction = np.empty((n, m), dtype=np.int8)
@@ -387,7 +378,7 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
     del run_id
     ds = np.zeros(n)
     if tall:
-        for a, b in _blocks(n, 1):
+        for a, b in blocks(n, 1):
             ds[a:b] = np.linalg.norm(ball[a:b] - ball[a - 1:b - 1], axis=1)
     else:
         ds[1:] = np.linalg.norm(np.diff(ball, axis=0), axis=1)
@@ -402,7 +393,7 @@ def build_context(plan: PlanFiles, program: str, velocity_eps: float = 1e-3) -> 
         # (so added in the same order as the sum over the whole)
         integral = np.empty((n, 3))
         carry = np.zeros((1, 3))
-        for a, b in _blocks(n):
+        for a, b in blocks(n):
             lo = max(a, 1)
             mid = np.zeros((b - a, 3))
             mid[lo - a:] = 0.5 * (ball[lo:b] + ball[lo - 1:b - 1]) * ds[lo:b, None]

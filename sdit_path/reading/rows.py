@@ -13,6 +13,16 @@ from __future__ import annotations
 
 import numpy as np
 
+#: samples made at a time where a tall program's values are made over many of them (a
+#: few MB a column)
+BLOCK_ROWS = 1 << 16
+
+
+def blocks(n: int, first: int = 0):
+    """``(start, stop)`` of the blocks of :data:`BLOCK_ROWS` samples from ``first`` to ``n``."""
+    for a in range(first, n, BLOCK_ROWS):
+        yield a, min(a + BLOCK_ROWS, n)
+
 
 def interp_rows(k: np.ndarray, values: np.ndarray, x: np.ndarray) -> np.ndarray:
     """``values : (len(k), w)`` given at the increasing grid indices ``k``, linearly
@@ -104,7 +114,7 @@ class Rows:
             vals = vals[0]
         return vals if every else vals[..., c]
 
-    def _rows_in_blocks(self, idx: np.ndarray, block: int = 1 << 16) -> np.ndarray:
+    def _rows_in_blocks(self, idx: np.ndarray, block: int = BLOCK_ROWS) -> np.ndarray:
         """:meth:`rows`, a block of them at a time where many are asked for (each row is
         made from its own sample: the same numbers, without the temporaries of all of
         them at once)."""

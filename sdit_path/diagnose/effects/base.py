@@ -24,6 +24,7 @@ from typing import ClassVar
 import numpy as np
 
 from ...reading.context import Context
+from ...reading.rows import BLOCK_ROWS
 
 
 @dataclass(frozen=True, slots=True)
@@ -85,7 +86,7 @@ def memo(cache: dict, ctx: Context, value: float, make, digits: int = 9):
     return cache[key][1]
 
 
-def filtered_blocks(b, a, n: int, rows, zi, block: int = 1 << 16):
+def filtered_blocks(b, a, n: int, rows, zi, block: int = BLOCK_ROWS):
     """``lfilter(b, a, X, axis=0, zi=zi)`` of ``X : (n, k)`` a block of samples at a
     time, ``rows(start, stop)`` giving those rows of ``X``: yields ``(start, stop, y)``,
     the filter's state carried from block to block, so the same numbers as filtered

@@ -7,6 +7,7 @@ from types import MappingProxyType
 import numpy as np
 
 from ...reading.context import Context
+from ...reading.rows import blocks
 from .base import Effect, filtered_blocks, grid_search, memo, projection_gain
 
 
@@ -263,12 +264,11 @@ class ServoMismatch(Effect):
         for i, h in enumerate(hints):
             if not h:
                 continue
-            lags = [tau for tau in (common_ms, common_ms + h)]
+            lags = (common_ms, common_ms + h)
             coef = [([1.0, 1.0], [1.0 + 2.0 * tau * 1e-3 / dt, 1.0 - 2.0 * tau * 1e-3 / dt])
                     for tau in lags]
             zi = [np.zeros(1), np.zeros(1)]
-            for start in range(0, ctx.n, 1 << 16):
-                stop = min(start + (1 << 16), ctx.n)
+            for start, stop in blocks(ctx.n):
                 x = ctx.q[start:stop, others[i]] - q0[i]
                 ys = []
                 for m, tau in enumerate(lags):

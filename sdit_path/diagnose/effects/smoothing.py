@@ -7,6 +7,7 @@ from types import MappingProxyType
 import numpy as np
 
 from ...reading.context import Context
+from ...reading.rows import blocks
 from .base import Effect, grid_search, memo, projection_gain
 
 
@@ -81,8 +82,7 @@ def time_filtered_radial_um(ctx: Context, sigma_s: float) -> np.ndarray:
         # every output sample sums the same inputs as the whole: the same numbers)
         reach = int(6.0 * sigma_s / dt + 0.5) + 1
         out = np.empty(ctx.n)
-        for a in range(0, ctx.n, 1 << 16):
-            b = min(a + (1 << 16), ctx.n)
+        for a, b in blocks(ctx.n):
             lo, hi = max(a - reach, 0), min(b + reach, ctx.n)
             smooth = gaussian_filter1d(ctx.ball_mm[lo:hi] - p0, sigma_s / dt, axis=0,
                                        mode="nearest", truncate=6.0)[a - lo:b - lo] + p0

@@ -7,6 +7,7 @@ from types import MappingProxyType
 import numpy as np
 
 from ...reading.context import sample_at, sample_made
+from ...reading.rows import BLOCK_ROWS
 from .base import Effect, filtered_blocks, gain2, linear_axes, projection_gain
 
 
@@ -29,7 +30,7 @@ def _mode_response(acc: np.ndarray, dt: float, f_hz: float, zeta: float) -> np.n
 
 
 def _mode_response_rows(acc: np.ndarray, dt: float, f_hz: float, zeta: float,
-                        rows: np.ndarray, block: int = 1 << 16) -> np.ndarray:
+                        rows: np.ndarray, block: int = BLOCK_ROWS) -> np.ndarray:
     """The rows ``rows`` (increasing) of ``_mode_response(acc, ...)`` for ``acc : (n,
     k)``, filtered a block of samples at a time with the filter's state carried from
     block to block (the same numbers; the response on every sample of an hour is 80 MB,
