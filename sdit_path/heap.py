@@ -59,44 +59,39 @@ def _mallopt():
 
 
 @contextlib.contextmanager
-def reusing_freed_memory(keep_bytes: int = 128 << 20):
-    """Within the block (and in processes forked in it), allocations up to 32 MB are
-    served from the heap and freed memory is kept for the next one, at most
-    ``keep_bytes`` of it at the heap's top."""
+def _settings(values: dict[int, int]):
+    """Within the block the mallopt ``values`` (parameter: value), what was set
+    before put back afterwards and the freed pages given back."""
     mallopt = _mallopt()
     if mallopt is None:
         yield
         return
     before = dict(_current)
-    _set(mallopt, _M_MMAP_THRESHOLD, _LARGEST_THRESHOLD)
-    _set(mallopt, _M_TRIM_THRESHOLD, min(keep_bytes, 2**31 - 1))
-    _set(mallopt, _M_TOP_PAD, min(keep_bytes // 2, 2**31 - 1))
+    for param, value in values.items():
+        _set(mallopt, param, value)
     try:
         yield
     finally:
-        for param, value in before.items():
-            _set(mallopt, param, value)
+        for p, value in before.items():
+            _set(mallopt, p, value)
         release_freed_memory()
 
 
-@contextlib.contextmanager
+def reusing_freed_memory(keep_bytes: int = 128 << 20):
+    """Within the block (and in processes forked in it), allocations up to 32 MB are
+    served from the heap and freed memory is kept for the next one, at most
+    ``keep_bytes`` of it at the heap's top."""
+    return _settings({_M_MMAP_THRESHOLD: _LARGEST_THRESHOLD,
+                      _M_TRIM_THRESHOLD: min(keep_bytes, 2**31 - 1),
+                      _M_TOP_PAD: min(keep_bytes // 2, 2**31 - 1)})
+
+
 def mapping_large_blocks(threshold: int = 4 << 20):
     """Within the block, allocations above ``threshold`` are mapped, and handed back
     to the kernel when freed: a tall program's arrays (27 MB each an hour at 1 kHz,
     made and dropped by the hundred) otherwise stay in the heap once freed, hundreds of
     MB of them between two :func:`release_freed_memory`."""
-    mallopt = _mallopt()
-    if mallopt is None:
-        yield
-        return
-    before = dict(_current)
-    _set(mallopt, _M_MMAP_THRESHOLD, threshold)
-    try:
-        yield
-    finally:
-        for param, value in before.items():
-            _set(mallopt, param, value)
-        release_freed_memory()
+    return _settings({_M_MMAP_THRESHOLD: threshold})
 
 
 def release_freed_memory() -> None:

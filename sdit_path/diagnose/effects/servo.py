@@ -173,12 +173,7 @@ class ServoMismatch(Effect):
             w0 = w[0].copy() if w0 is None else w0
             y, zi = lfilter(b, a, w - w0, axis=0, zi=zi)
             out[start:stop] = y + w0
-        shift = int(round(common_ms * 1e-3 / dt))
-        if shift:
-            last = out[-1].copy()
-            out[:-shift] = out[shift:]
-            out[-min(shift, ctx.n):] = last
-        return out
+        return _read_later(out, int(round(common_ms * 1e-3 / dt)))
 
     def search(self, ctx, s, r):
         if not self._axes(ctx)[0]:
@@ -278,12 +273,7 @@ class ServoMismatch(Effect):
                     y, zi[m] = lfilter(*coef[m], x, zi=zi[m])
                     ys.append(y)
                 out[start:stop, i] = (ys[1] - ys[0]) / (h * 1e-3)
-        shift = int(round(common_ms * 1e-3 / dt))
-        if shift:
-            last = out[-1].copy()
-            out[:-shift] = out[shift:]
-            out[-min(shift, ctx.n):] = last
-        return out
+        return _read_later(out, int(round(common_ms * 1e-3 / dt)))
 
     def from_fit(self, nl, coef, labels):
         # label lag_<axis>_minus_<ref>_ms -> that axis' difference, within the limits
@@ -303,3 +293,13 @@ class ServoMismatch(Effect):
         out = {k: float(v) for k, v in nl.items() if not k.startswith(SECOND_ORDER)}
         out.update({lab: float(c) for lab, c in zip(labels, coef)})
         return out
+
+
+def _read_later(out: np.ndarray, shift: int) -> np.ndarray:
+    """``out`` read ``shift`` samples later, its last row held at the end (in place:
+    ``np.concatenate([out[shift:], np.repeat(out[-1:], shift, axis=0)])``)."""
+    if shift:
+        last = out[-1].copy()
+        out[:-shift] = out[shift:]
+        out[-min(shift, len(out)):] = last
+    return out
